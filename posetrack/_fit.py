@@ -1,0 +1,149 @@
+"""Fitting the body model to landmarks with optimistix Levenberg-Marquardt (Eq. (2)).
+
+``fit_pose`` handles ONE pose (one frame, one hypothesis, one landmark subset) and is pure, so
+the tracker vmaps it over hypotheses inside a single jit call (``fit_hypotheses``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import optimistix as optx
+from jaxtyping import Array, Bool, Float, Int
+
+from ._body import BodyShape, normalize_params
+from ._camera import Intrinsics
+from ._observe import Landmarks
+from ._residuals import ResidualSettings, landmark_residuals, pixel_scale, regulariser_residuals
+
+
+@dataclasses.dataclass(frozen=True)
+class FitSettings:
+    """Levenberg-Marquardt settings. Hashable (a static argument under jit).
+
+    Tracking starts close to the answer, and a vmapped while loop runs every hypothesis until
+    the slowest stops, so the step count is capped (``max_steps``); hitting the cap is not a
+    failure. See ``benchmarks/README.md`` for the measurements behind the defaults.
+    """
+
+    max_steps: int = 12
+    rtol: float = 1e-4
+    atol: float = 1e-6
+    linear_solver: str = "cholesky"
+    """"cholesky": normal equations, lineax ``Normal(Cholesky())`` (fast; the damping keeps
+    them positive definite); "qr": lineax QR (optimistix's default, slower)."""
+    residuals: ResidualSettings = ResidualSettings()
+
+    def __post_init__(self):
+        if self.max_steps < 1:
+            raise ValueError(f"FitSettings.max_steps must be >= 1, got {self.max_steps}")
+        if self.linear_solver not in ("cholesky", "qr"):
+            raise ValueError(
+                f"FitSettings.linear_solver must be 'cholesky' or 'qr', got {self.linear_solver!r}"
+            )
+
+    def solver(self) -> optx.LevenbergMarquardt:
+        linear = lx.Normal(lx.Cholesky()) if self.linear_solver == "cholesky" else lx.QR()
+        return optx.LevenbergMarquardt(rtol=self.rtol, atol=self.atol, linear_solver=linear)
+
+
+class FitResult(eqx.Module):
+    """Outcome of one fit. Failure is data: ``ok`` is False and ``params`` is the start pose."""
+
+    params: Float[Array, "43"]
+    """Fitted pose (quaternions unit, w >= 0)."""
+    cost: Float[Array, ""]
+    """Final value of the landmark term (sum of squared residuals without regularisers)."""
+    num_steps: Int[Array, ""]
+    """LM steps taken."""
+    ok: Bool[Array, ""]
+    """The solver returned a finite pose (converged or stopped at ``max_steps``)."""
+
+
+def _residual_fn(params, args):
+    shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings = args
+    lm = landmark_residuals(
+        params, shape, landmarks, intrinsics,
+        use3d=use3d, use2d=use2d, metres_per_pixel=mpp, settings=settings,
+    )  # fmt: skip
+    reg = regulariser_residuals(params, start, settings)
+    return jnp.concatenate([lm.reshape(-1), reg])
+
+
+def fit_pose(
+    start_params: Float[Array, "43"],
+    shape: BodyShape,
+    landmarks: Landmarks,
+    intrinsics: Intrinsics,
+    *,
+    use3d: Bool[Array, "kpt"],
+    use2d: Bool[Array, "kpt"],
+    settings: FitSettings = FitSettings(),
+) -> FitResult:
+    """Minimise Eq. (1) over the 43 pose parameters, starting from ``start_params``.
+
+    Args:
+        start_params: the starting pose (previous frame's estimate, or an initialisation).
+        shape: body dimensions (held fixed).
+        landmarks: this frame's lifted observations.
+        intrinsics: the camera.
+        use3d: (kpt,) which 3D landmarks enter the fit (must imply ``landmarks.has_depth``).
+        use2d: (kpt,) which 2D landmarks enter the fit (used where ``use3d`` is false and the
+            keypoint is detected).
+        settings: solver settings (static).
+
+    Returns:
+        :class:`FitResult`; never raises inside jit, never returns NaN parameters.
+    """
+    use3d = use3d & landmarks.has_depth
+    use2d = use2d & landmarks.detected & ~use3d
+    start = normalize_params(start_params)
+    mpp = pixel_scale(start, shape, intrinsics)
+    args = (shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings.residuals)
+    sol = optx.least_squares(
+        _residual_fn,
+        settings.solver(),
+        start,
+        args=args,
+        max_steps=settings.max_steps,
+        throw=False,
+    )
+    params = normalize_params(sol.value)
+    finished = (sol.result == optx.RESULTS.successful) | (
+        sol.result == optx.RESULTS.nonlinear_max_steps_reached
+    )
+    ok = finished & jnp.all(jnp.isfinite(params))
+    params = jnp.where(ok, params, start)
+    lm = landmark_residuals(
+        params, shape, landmarks, intrinsics,
+        use3d=use3d, use2d=use2d, metres_per_pixel=mpp, settings=settings.residuals,
+    )  # fmt: skip
+    return FitResult(
+        params=params,
+        cost=jnp.sum(lm * lm),
+        num_steps=jnp.asarray(sol.stats["num_steps"]),
+        ok=ok,
+    )
+
+
+def fit_hypotheses(
+    start_params: Float[Array, "hyp 43"],
+    shape: BodyShape,
+    landmarks: Landmarks,
+    intrinsics: Intrinsics,
+    *,
+    use3d: Bool[Array, "hyp kpt"],
+    use2d: Bool[Array, "hyp kpt"],
+    settings: FitSettings = FitSettings(),
+) -> FitResult:
+    """:func:`fit_pose` vmapped over the leading ``hyp`` axis of the start poses and masks
+    (shape, landmarks and camera shared)."""
+    return jax.vmap(
+        lambda p, u3, u2: fit_pose(
+            p, shape, landmarks, intrinsics, use3d=u3, use2d=u2, settings=settings
+        )
+    )(start_params, use3d, use2d)

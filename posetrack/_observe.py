@@ -1,0 +1,107 @@
+"""Lifting 2D keypoints to 3D landmarks with the depth map (paper section 2.2).
+
+For each detected 2D keypoint o_i the depth is read robustly around it (median of the valid
+depths in a small window; zero, NaN and out-of-range depths ignored) and back-projected to the
+3D landmark O_i. The paper's flags: f_i = keypoint detected (confidence above a threshold and
+inside the image), F_i = f_i and valid depth was found.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from ._camera import Intrinsics, backproject
+
+
+class Landmarks(eqx.Module):
+    """The observations of one frame that Eq. (1) compares the model with."""
+
+    keypoints2d: Float[Array, "kpt 2"]
+    """o_i: detected 2D keypoints, pixels (zeros where not detected)."""
+    confidence: Float[Array, "kpt"]
+    """Detector confidence in [0, 1] (0 where not detected)."""
+    points3d: Float[Array, "kpt 3"]
+    """O_i: lifted 3D landmarks, metres, camera frame (zeros where F_i is false)."""
+    detected: Bool[Array, "kpt"]
+    """f_i: the keypoint was detected (confidence above threshold, finite, inside the image)."""
+    has_depth: Bool[Array, "kpt"]
+    """F_i: detected and valid depth was found around it."""
+
+
+def lift_keypoints(
+    depth: Float[Array, "H W"],
+    keypoints2d: Float[Array, "kpt 2"],
+    confidence: Float[Array, "kpt"],
+    intrinsics: Intrinsics,
+    *,
+    window: int = 5,
+    confidence_threshold: float = 0.1,
+    min_depth: float = 0.2,
+    max_depth: float = 10.0,
+    min_valid: int = 3,
+    depth_offset: Float[Array, "kpt"] | float = 0.0,
+) -> Landmarks:
+    """Lift detected 2D keypoints to 3D with a depth map. Jittable; one frame.
+
+    Args:
+        depth: depth map in metres along the optical axis; 0, NaN and values outside
+            [min_depth, max_depth] are invalid. Its size must match ``intrinsics``.
+        keypoints2d: (kpt, 2) pixel coordinates (u, v); NaN or non-finite = not detected.
+        confidence: (kpt,) detector confidences; <= ``confidence_threshold`` = not detected.
+        intrinsics: the depth camera (depth registered to the keypoints' image).
+        window: odd side length of the square window the depth median is taken over, pixels.
+        confidence_threshold: f_i requires a confidence above this.
+        min_depth, max_depth: valid depth range, metres.
+        min_valid: F_i requires at least this many valid depths in the window.
+        depth_offset: metres added along each keypoint's viewing ray after lifting. The depth
+            sensor sees the body's surface, the model's keypoints are joint centres; pushing the
+            lifted point back by the local body radius removes most of that bias. 0 = the
+            paper's plain lifting.
+
+    Returns:
+        :class:`Landmarks` with f_i (``detected``) and F_i (``has_depth``).
+    """
+    if window % 2 != 1 or window < 1:
+        raise ValueError(f"lift_keypoints: window must be a positive odd integer, got {window}")
+    dtype = depth.dtype
+    H, W = depth.shape
+    half = window // 2
+    uv = keypoints2d.astype(dtype)
+    finite = jnp.all(jnp.isfinite(uv), axis=-1) & jnp.isfinite(confidence)
+    # Pixel centres are at integer coordinates: (u, v) lies in the image if it rounds into it.
+    inside = (uv[:, 0] > -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] > -0.5) & (uv[:, 1] < H - 0.5)
+    detected = finite & inside & (confidence > confidence_threshold)
+    safe_uv = jnp.where(detected[:, None], uv, 0.0)
+    col = jnp.clip(jnp.round(safe_uv[:, 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.round(safe_uv[:, 1]).astype(jnp.int32), 0, H - 1)
+
+    padded = jnp.pad(depth, half, constant_values=0.0)
+
+    def patch(r, c):
+        return jax.lax.dynamic_slice(padded, (r, c), (window, window)).reshape(-1)
+
+    patches = jax.vmap(patch)(row, col)  # (kpt, window*window); padding adds `half` offsets
+    valid = jnp.isfinite(patches) & (patches >= min_depth) & (patches <= max_depth)
+    n_valid = jnp.sum(valid, axis=-1)
+    big = jnp.asarray(jnp.finfo(dtype).max, dtype)
+    ordered = jnp.sort(jnp.where(valid, patches, big), axis=-1)
+    lo = jnp.take_along_axis(ordered, jnp.maximum((n_valid - 1) // 2, 0)[:, None], axis=-1)[:, 0]
+    hi = jnp.take_along_axis(ordered, jnp.maximum(n_valid // 2, 0)[:, None], axis=-1)[:, 0]
+    has_depth = detected & (n_valid >= min_valid)
+    z = jnp.where(has_depth, 0.5 * (lo + hi), 1.0)
+    points = backproject(intrinsics, safe_uv, z)
+    ray = points / jnp.linalg.norm(points, axis=-1, keepdims=True)
+    offset = jnp.broadcast_to(jnp.asarray(depth_offset, dtype), has_depth.shape)
+    points = points + offset[:, None] * ray
+    points = jnp.where(has_depth[:, None], points, 0.0)
+    conf = jnp.where(detected, confidence.astype(dtype), 0.0)
+    return Landmarks(
+        keypoints2d=jnp.where(detected[:, None], uv, 0.0),
+        confidence=conf,
+        points3d=points,
+        detected=detected,
+        has_depth=has_depth,
+    )

@@ -1,0 +1,96 @@
+"""Lifting 2D keypoints to 3D on hand-made depth maps with known answers."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from posetrack import Intrinsics
+from posetrack._observe import lift_keypoints
+
+INTR = Intrinsics.create(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)
+
+
+@pytest.fixture(scope="module")
+def lift():
+    return jax.jit(lift_keypoints, static_argnames=("window", "min_valid"))
+
+
+def _scene():
+    """A wall at 3 m, a box at 1.5 m over columns 10..29, rows 10..39, some holes."""
+    d = np.full((60, 80), 3.0, np.float32)
+    d[10:40, 10:30] = 1.5
+    d[20, 20] = 0.0  # a hole inside the box
+    d[21, 21] = np.nan  # and a NaN
+    d[22, 19] = 25.0  # out-of-range speck
+    d[50:, 50:] = 0.0  # an invalid region
+    return d
+
+
+def _kp(points):
+    kp = np.zeros((18, 2), np.float32)
+    conf = np.zeros(18, np.float32)
+    for i, (u, v, c) in enumerate(points):
+        kp[i] = (u, v)
+        conf[i] = c
+    return kp, conf
+
+
+def test_lifting_known_answers(lift):
+    kp, conf = _kp(
+        [
+            (20.0, 21.0, 0.9),  # 0: in the box, window contains a hole, a NaN and a speck
+            (60.0, 5.0, 0.8),  # 1: on the wall
+            (55.0, 55.0, 0.9),  # 2: in the invalid region -> detected, no depth
+            (20.0, 21.0, 0.05),  # 3: below the confidence threshold -> not detected
+            (-5.0, 10.0, 0.9),  # 4: outside the image -> not detected
+            (np.nan, 10.0, 0.9),  # 5: NaN coordinate -> not detected
+        ]
+    )
+    lm = lift(jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3)
+    detected = np.asarray(lm.detected)
+    has_depth = np.asarray(lm.has_depth)
+    np.testing.assert_array_equal(detected[:6], [True, True, True, False, False, False])
+    np.testing.assert_array_equal(has_depth[:6], [True, True, False, False, False, False])
+    assert not detected[6:].any()  # confidence 0
+    P = np.asarray(lm.points3d)
+    # Back-projection: X = (u - cx) / fx * z.
+    np.testing.assert_allclose(P[0], [(20 - 39.5) / 100 * 1.5, (21 - 29.5) / 100 * 1.5, 1.5], atol=1e-5)
+    np.testing.assert_allclose(P[1], [(60 - 39.5) / 100 * 3.0, (5 - 29.5) / 100 * 3.0, 3.0], atol=1e-5)
+    assert np.all(P[~has_depth] == 0) and np.isfinite(P).all()
+
+
+def test_median_picks_the_majority_surface(lift):
+    """A keypoint at the box edge: the median follows the majority of valid depths."""
+    kp, conf = _kp([(30.0, 25.0, 1.0), (29.0, 25.0, 1.0)])  # column 30 is wall, 29 is box
+    lm = lift(jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3)
+    z = np.asarray(lm.points3d)[:, 2]
+    # Window over columns 28..32: 2 box columns, 3 wall columns -> wall; 27..31: 3 box -> box.
+    assert z[0] == pytest.approx(3.0) and z[1] == pytest.approx(1.5)
+
+
+def test_even_count_median_and_min_valid(lift):
+    d = np.zeros((60, 80), np.float32)
+    d[30, 40], d[30, 41] = 2.0, 2.2  # only two valid pixels in the window
+    kp, conf = _kp([(40.0, 30.0, 1.0)])
+    lm = lift(jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=2)
+    assert bool(lm.has_depth[0]) and float(lm.points3d[0, 2]) == pytest.approx(2.1)
+    lm = lift(jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3)
+    assert not bool(lm.has_depth[0])
+
+
+def test_depth_offset_moves_along_the_ray():
+    kp, conf = _kp([(60.0, 5.0, 0.8)])
+    d = jnp.asarray(_scene())
+    plain = lift_keypoints(d, jnp.asarray(kp), jnp.asarray(conf), INTR)
+    pushed = lift_keypoints(d, jnp.asarray(kp), jnp.asarray(conf), INTR, depth_offset=0.1)
+    p0, p1 = np.asarray(plain.points3d[0]), np.asarray(pushed.points3d[0])
+    np.testing.assert_allclose(np.linalg.norm(p1 - p0), 0.1, atol=1e-5)
+    np.testing.assert_allclose(np.cross(p0, p1), 0, atol=1e-5)  # same ray
+    assert p1[2] > p0[2]
+
+
+def test_even_window_is_rejected():
+    kp, conf = _kp([])
+    with pytest.raises(ValueError, match="window"):
+        lift_keypoints(jnp.zeros((60, 80)), jnp.asarray(kp), jnp.asarray(conf), INTR, window=4)
