@@ -1,0 +1,216 @@
+"""BVH: write -> read -> forward kinematics equals FK computed directly from the quaternions."""
+
+import numpy as np
+import pytest
+from conftest import require_data
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from posetrack.io import (
+    InputError,
+    bvh_forward_kinematics,
+    matrix_to_euler_zyx,
+    quaternion_to_matrix,
+    read_bvh,
+    write_bvh,
+)
+
+
+def qmul(a, b):
+    """Hamilton product of wxyz quaternions (..., 4)."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
+
+
+def qrotate(q, v):
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4): q v q*."""
+    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], -1)
+    conj = q * np.array([1, -1, -1, -1])
+    return qmul(qmul(q, qv), conj)[..., 1:]
+
+
+def fk_from_quaternions(parents, offsets, root, quats):
+    """Reference FK written with quaternion algebra (independent of the matrix code)."""
+    quats = quats / np.linalg.norm(quats, axis=-1, keepdims=True)
+    n_frames, n_joints = quats.shape[:2]
+    q_world = np.zeros((n_frames, n_joints, 4))
+    p_world = np.zeros((n_frames, n_joints, 3))
+    for j in range(n_joints):
+        p = parents[j]
+        if p < 0:
+            q_world[:, j], p_world[:, j] = quats[:, j], root
+        else:
+            q_world[:, j] = qmul(q_world[:, p], quats[:, j])
+            offset = np.broadcast_to(offsets[j], root.shape)
+            p_world[:, j] = p_world[:, p] + qrotate(q_world[:, p], offset)
+    return p_world
+
+
+def axis_angle_quat(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def random_motion(seed, n_frames=40, n_joints=12):
+    rng = np.random.default_rng(seed)
+    # parents[j] < j, deliberately not in depth-first order (the file order differs).
+    parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, n_joints)])
+    offsets = rng.uniform(-0.4, 0.4, (n_joints, 3))
+    root = rng.uniform(-2, 2, (n_frames, 3))
+    quats = rng.normal(size=(n_frames, n_joints, 4))
+    # Gimbal lock of the ZYX decomposition (y = +-90 deg), near-identity, and q vs -q.
+    lock = qmul(axis_angle_quat([0, 0, 1], 0.7), axis_angle_quat([0, 1, 0], np.pi / 2))
+    quats[0, :] = qmul(lock, axis_angle_quat([1, 0, 0], -0.3))
+    quats[1, :] = qmul(axis_angle_quat([0, 1, 0], -np.pi / 2), axis_angle_quat([1, 0, 0], 2.0))
+    quats[2, :] = [1.0, 1e-9, -2e-9, 1e-9]
+    quats[3, :] = axis_angle_quat([0, 1, 0], np.pi / 2 - 1e-7)
+    quats[5] = -quats[4]
+    names = [f"joint{j}" for j in range(n_joints)]
+    return names, parents, offsets, root, quats
+
+
+def _fk_file(path):
+    bvh = read_bvh(path)
+    return bvh, bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+
+
+@pytest.mark.parametrize(
+    ("seed", "units", "scale"), [(0, "cm", 0.01), (1, "m", 1.0), (2, "cm", 0.01)]
+)
+def test_round_trip_positions(tmp_path, seed, units, scale):
+    names, parents, offsets, root, quats = random_motion(seed)
+    path = tmp_path / "motion.bvh"
+    write_bvh(
+        path, joint_names=names, parents=parents, offsets=offsets, root_positions=root,
+        local_rotations_wxyz=quats, fps=30.0, units=units,
+    )  # fmt: skip
+    bvh, positions = _fk_file(path)
+    order = [bvh.names.index(n) for n in names]
+    expected = fk_from_quaternions(parents, offsets, root, quats)
+    np.testing.assert_allclose(positions[:, order] * scale, expected, atol=1e-6, rtol=0)
+    assert bvh.frame_time == pytest.approx(1 / 30.0, abs=1e-10) and bvh.motion.shape[0] == 40
+    assert bvh.channels[0] == (
+        "Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation"
+    )  # fmt: skip
+    assert all(c == ("Zrotation", "Yrotation", "Xrotation") for c in bvh.channels[1:])
+    assert np.all(bvh.offsets[0] == 0)
+    leaves = set(range(len(names))) - set(parents[1:].tolist())
+    assert {bvh.names[j] for j in bvh.end_sites} == {names[j] for j in leaves}
+
+
+def test_camera_to_y_up(tmp_path):
+    names, parents, offsets, root, quats = random_motion(3, n_frames=10)
+    leaf = next(j for j in range(len(names)) if j not in parents)
+    path = tmp_path / "y_up.bvh"
+    write_bvh(
+        path, joint_names=names, parents=parents, offsets=offsets, root_positions=root,
+        local_rotations_wxyz=quats, fps=25.0, camera_to_y_up=True,
+        end_sites={names[leaf]: [0.0, 0.1, 0.0]},
+    )  # fmt: skip
+    bvh, positions = _fk_file(path)
+    order = [bvh.names.index(n) for n in names]
+    expected = fk_from_quaternions(parents, offsets, root, quats) * np.array([1, -1, -1])
+    np.testing.assert_allclose(positions[:, order] / 100, expected, atol=1e-6, rtol=0)
+    # An upright skeleton in the camera frame (head at -y) is upright in the file (+y).
+    np.testing.assert_allclose(bvh.end_sites[bvh.names.index(names[leaf])], [0, -10.0, 0])
+
+
+def test_euler_angles_are_unwrapped_over_time(tmp_path):
+    angles = np.linspace(0, 4 * np.pi, 50)
+    quats = np.stack([axis_angle_quat([0, 0, 1], a) for a in angles])[:, None]
+    path = tmp_path / "spin.bvh"
+    write_bvh(
+        path, joint_names=["root"], parents=[-1], offsets=np.zeros((1, 3)),
+        root_positions=np.zeros((50, 3)), local_rotations_wxyz=quats, fps=10,
+    )  # fmt: skip
+    z = read_bvh(path).motion[:, 3]
+    assert np.max(np.abs(np.diff(z))) < 20 and z[-1] == pytest.approx(720.0, abs=1e-4)
+
+
+unit_quaternions = st.lists(
+    st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4
+).filter(lambda q: np.linalg.norm(q) > 1e-3)
+
+
+@settings(max_examples=200, deadline=None)
+@given(q=unit_quaternions, near_lock=st.booleans(), sign=st.sampled_from([1.0, -1.0]))
+def test_matrix_to_euler_zyx_reconstructs_the_rotation(q, near_lock, sign):
+    q = np.asarray(q) * sign
+    if near_lock:  # push the rotation onto (or next to) y = +-90 deg
+        q = qmul(axis_angle_quat([0, 1, 0], np.pi / 2), q * np.array([1, 1, 1e-9, 1]))
+    R = quaternion_to_matrix(q)
+    z, y, x = matrix_to_euler_zyx(R)
+    cz, sz, cy, sy, cx, sx = np.cos(z), np.sin(z), np.cos(y), np.sin(y), np.cos(x), np.sin(x)
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    np.testing.assert_allclose(Rz @ Ry @ Rx, R, atol=1e-12)
+    np.testing.assert_allclose(quaternion_to_matrix(-q), R, atol=1e-15)
+
+
+def test_write_bvh_rejects_bad_arguments(tmp_path):
+    names, parents, offsets, root, quats = random_motion(4, n_frames=8, n_joints=3)
+    good = dict(
+        joint_names=names, parents=parents, offsets=offsets, root_positions=root,
+        local_rotations_wxyz=quats, fps=30,
+    )  # fmt: skip
+    path = tmp_path / "x.bvh"
+    for change, match in [
+        ({"joint_names": ["a", "b c", "d"]}, "spaces"),
+        ({"joint_names": ["a", "a", "b"]}, "twice"),
+        ({"parents": [-1, 2, 0]}, "parents"),
+        ({"fps": 0}, "fps"),
+        ({"local_rotations_wxyz": np.zeros_like(quats)}, "zero quaternion"),
+        ({"root_positions": np.full_like(root, np.nan)}, "not finite"),
+        ({"end_sites": {"nobody": [0, 0, 0]}}, "unknown joint"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            write_bvh(path, **{**good, **change})
+    assert not path.exists()
+
+
+def test_read_bvh_errors(tmp_path):
+    names, parents, offsets, root, quats = random_motion(5, n_frames=6, n_joints=4)
+    path = tmp_path / "m.bvh"
+    write_bvh(
+        path, joint_names=names, parents=parents, offsets=offsets, root_positions=root,
+        local_rotations_wxyz=quats, fps=30,
+    )  # fmt: skip
+    lines = path.read_text().splitlines()
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("\n".join(lines[:-2]) + "\n")
+    with pytest.raises(InputError, match="declares 6 frames but the file holds 4") as info:
+        read_bvh(bad)
+    assert info.value.field == "Frames" and info.value.value == 6
+    bad.write_text("\n".join(lines[:-1] + [lines[-1].replace(" ", " abc ", 1)]) + "\n")
+    with pytest.raises(InputError, match="values|number"):
+        read_bvh(bad)
+    bad.write_text("\n".join(lines[:-1] + [lines[-1].rsplit(" ", 1)[0] + " nan"]) + "\n")
+    with pytest.raises(InputError, match="finite") as info:
+        read_bvh(bad)
+    assert info.value.field == f"line {len(lines)}"
+    motion_at = lines.index("MOTION")
+    bad.write_text("\n".join(lines[:motion_at]))
+    with pytest.raises(InputError, match="no MOTION"):
+        read_bvh(bad)
+
+
+def test_reads_a_real_cmu_file():
+    bvh, positions = _fk_file(require_data("cmu-mocap-bvh-subject131") / "131_01.bvh")
+    assert bvh.names[0] == "Hips" and len(bvh.names) == 31 and positions.shape == (994, 31, 3)
+    assert bvh.channels[0][3:] == ("Zrotation", "Yrotation", "Xrotation")
+    assert bvh.frame_time == pytest.approx(1 / 120, rel=1e-3)
+    # Rigid bones: joint-to-parent distances are the same in every frame.
+    child = np.arange(1, 31)
+    lengths = np.linalg.norm(positions[:, child] - positions[:, bvh.parents[child]], axis=-1)
+    np.testing.assert_allclose(lengths, np.broadcast_to(lengths[0], lengths.shape), atol=1e-9)
+    np.testing.assert_allclose(lengths[0], np.linalg.norm(bvh.offsets[child], axis=-1), atol=1e-9)
