@@ -1,0 +1,303 @@
+"""``generate``: the synthetic RGB-D + keypoint "camera" and its output type."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from posetrack._camera import Intrinsics, pixel_rays_np
+
+from ._detector import DetectorConfig, perfect_detector, simulate_detector
+from ._mocap import real_motion
+from ._motion import MOTIONS, procedural_motion
+from ._occlusion import MAX_LEVEL, occluder_rects, person_boxes, rect_mask
+from ._scene import BODY_LABEL0, make_scene, place_motion
+from ._sensor import SensorConfig, ideal_sensor, simulate_sensor
+from ._skeleton import (
+    KEYPOINT_NAMES,
+    N_KPT,
+    SEG,
+    forward_kinematics,
+    keypoints_world,
+    sample_subject,
+)
+from ._surface import Background, hair_mask, primitives_camera, render_frame, shade
+
+# Independent random streams per concern, keyed by (seed, stream): changing one option (say
+# the occlusion level) leaves the subject, motion, scene and sensor noise unchanged.
+_SUBJECT, _MOTION, _SCENE, _SENSOR, _DETECTOR, _OCCLUDER, _RGB = range(1, 8)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class SyntheticSequence:
+    """A rendered synthetic RGB-D sequence with detector output and ground truth.
+
+    Camera frame: x right, y down, z forward, metres. Pixel (0, 0) is the centre of the
+    top-left pixel. Keypoints in OpenPose COCO-18 order (:data:`KEYPOINT_NAMES`).
+    """
+
+    depth: np.ndarray
+    """(T, H, W) uint16 measured depth, millimetres; 0 = invalid."""
+    rgb: np.ndarray | None
+    """(T, H, W, 3) uint8 shaded colour image registered to the depth (occluders black);
+    None when generated with ``with_rgb=False``."""
+    keypoints2d: np.ndarray
+    """(T, 18, 2) float32 detected keypoints, px; (0, 0) when not detected."""
+    confidence: np.ndarray
+    """(T, 18) float32 detection confidence in [0, 1]; 0 = not detected."""
+    joints3d: np.ndarray
+    """(T, 18, 3) float64 ground-truth keypoints, camera frame, m (joint centres inside the
+    body; eyes, ears and nose on the head surface)."""
+    joints2d: np.ndarray
+    """(T, 18, 2) float64 exact projections of ``joints3d``, px."""
+    visible: np.ndarray
+    """(T, 18) bool: the keypoint is inside the image, not under an occluder and not hidden
+    by the body itself."""
+    occluder_masks: np.ndarray
+    """(T, H, W) bool pixels removed by occluding rectangles."""
+    person_mask: np.ndarray
+    """(T, H, W) bool pixels showing the person (noise-free, before occluders)."""
+    intrinsics: Intrinsics
+    """Camera intrinsics."""
+    fps: float
+    """Frame rate, Hz."""
+    T_cam_world: np.ndarray
+    """(4, 4) world (y up, floor y = 0) -> camera transform."""
+    floor_plane: np.ndarray
+    """(4,) floor in the camera frame, (n, d) with n . p + d = 0, n unit and pointing up."""
+    subject: dict[str, Any]
+    """The generated person's dimensions (m) and colours."""
+    meta: dict[str, Any]
+    """Motion, seed, levels, scene, sensor and detector settings."""
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.depth.shape[0])
+
+    def __len__(self) -> int:
+        return self.n_frames
+
+    def __repr__(self) -> str:
+        return (f"SyntheticSequence(motion={self.meta['motion']!r}, seed={self.meta['seed']}, "
+                f"frames={self.n_frames}, size={self.intrinsics.width}x"
+                f"{self.intrinsics.height}, fps={self.fps}, "
+                f"occlusion_level={self.meta['occlusion_level']})")
+
+
+def _visibility(joints_cam: np.ndarray, uv: np.ndarray, radius: np.ndarray, own, label,
+                depth, occ_mask, fx: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-keypoint fraction of a 5x5 neighbourhood that shows its own parts / an occluder.
+
+    A sample "shows the joint" when the surface there belongs to one of the joint's own
+    primitives and lies at most 1.3 x the local body radius + 3 cm in front of the joint
+    centre (an arm in front of the torso, the far side of the body or the back of the head
+    fail the test).
+    """
+    z = joints_cam[:, 2]
+    rho = np.maximum(1.5, 0.7 * radius * fx / np.maximum(z, 0.1))
+    g = np.linspace(-1.0, 1.0, 5)
+    off = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)  # (25, 2)
+    pts = uv[:, None, :] + rho[:, None, None] * off[None]
+    ui = np.round(pts[..., 0]).astype(int)
+    vi = np.round(pts[..., 1]).astype(int)
+    inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    uc, vc = np.clip(ui, 0, W - 1), np.clip(vi, 0, H - 1)
+    lab = label[vc, uc].astype(int) - BODY_LABEL0
+    zs = depth[vc, uc]
+    tol = 1.3 * radius + 0.03
+    own_ok = np.zeros(lab.shape, dtype=bool)
+    for k in range(N_KPT):
+        own_ok[k] = np.isin(lab[k], list(own[k])) & ((z[k] - zs[k]) < tol[k])
+    own_ok &= inside
+    self_vis = own_ok.mean(axis=1)
+    occ = (occ_mask[vc, uc] & inside).mean(axis=1)
+    return self_vis, occ
+
+
+def generate(
+    seed: int = 0,
+    *,
+    motion: str = "walk",
+    n_frames: int = 60,
+    fps: float = 30.0,
+    occlusion_level: int = 0,
+    width: int = 640,
+    height: int = 480,
+    sensor_noise: bool = True,
+    detector_noise: bool = True,
+    progress: bool = False,
+    intrinsics: Intrinsics | None = None,
+    sensor: SensorConfig | None = None,
+    detector: DetectorConfig | None = None,
+    occluder_area: float = 0.12,
+    motion_start: float = 0.0,
+    yaw_deg: float | None = None,
+    with_rgb: bool = True,
+) -> SyntheticSequence:
+    """Render a synthetic RGB-D sequence of one random person.
+
+    Args:
+        seed: everything random derives from it (same arguments => identical arrays).
+        motion: a built-in motion (:data:`MOTIONS`) or a real one from
+            :func:`list_real_motions` (``"cmu:131_01"``, ``"msr:a01_s01_e01"``,
+            ``"utk:s01_e01:waveHands"``).
+        n_frames: number of frames T.
+        fps: frame rate, Hz.
+        occlusion_level: 0 (none) .. 4 rectangles over the person (see ``_occlusion``).
+        width, height: image size, px; intrinsics are the Kinect-v1-like 640x480 ones
+            (fx = fy = 525, principal point at the centre) rescaled to this size.
+        sensor_noise: apply the Kinect model (noise, quantisation, shadows, dropouts);
+            False gives the exact rendered depth rounded to mm (still 0 out of range).
+        detector_noise: apply OpenPose-like errors; False reports the exact projections of
+            the ground-truth keypoints with confidence 1 (0 and (0, 0) outside the image).
+        progress: print progress to stderr.
+        intrinsics: explicit intrinsics (overrides width/height).
+        sensor: sensor parameters. detector: detector error parameters.
+        occluder_area: nominal area of each occluding rectangle, fraction of the person box.
+        motion_start: start time within a real motion clip, s.
+        yaw_deg: fixed facing (travel) direction instead of a random one; 0 = facing the
+            camera (travelling motions: moving to the camera's right).
+        with_rgb: also render the colour images.
+
+    Raises:
+        ValueError: naming the bad argument. FileNotFoundError: real motion data missing.
+    """
+    if int(n_frames) != n_frames or n_frames < 1:
+        raise ValueError(f"generate: n_frames must be a positive integer, got {n_frames!r}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"generate: fps must be positive, got {fps!r}")
+    if int(occlusion_level) != occlusion_level or not 0 <= occlusion_level <= MAX_LEVEL:
+        raise ValueError(f"generate: occlusion_level must be 0..{MAX_LEVEL}, got "
+                         f"{occlusion_level!r}")
+    if motion not in MOTIONS and ":" not in motion:
+        raise ValueError(f"generate: unknown motion {motion!r}; built-in: {MOTIONS}, real: "
+                         "see list_real_motions()")
+    if intrinsics is None:
+        if int(width) != width or int(height) != height or width < 16 or height < 16:
+            raise ValueError(f"generate: bad image size {width!r}x{height!r}")
+        intrinsics = Intrinsics.create(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640,
+                                       height=480)
+        if (width, height) != (640, 480):
+            intrinsics = intrinsics.scaled(int(width), int(height))
+    n_frames, W, H = int(n_frames), intrinsics.width, intrinsics.height
+    fx, fy = float(intrinsics.fx), float(intrinsics.fy)
+    cx, cy = float(intrinsics.cx), float(intrinsics.cy)
+    scfg = sensor or SensorConfig()
+    dcfg = detector or DetectorConfig()
+
+    def rng(stream: int) -> np.random.Generator:
+        return np.random.default_rng([int(seed) & 0xFFFFFFFF, stream])
+
+    t_start = time.perf_counter()
+    subject = sample_subject(rng(_SUBJECT))
+    if motion in MOTIONS:
+        clip = procedural_motion(motion, subject, n_frames=n_frames, fps=fps, rng=rng(_MOTION))
+    else:
+        clip = real_motion(motion, subject, n_frames=n_frames, fps=fps, start=motion_start)
+    r_scene = rng(_SCENE)
+    clip = place_motion(clip, r_scene, yaw_deg=yaw_deg)
+    scene, clip = make_scene(r_scene, intrinsics, subject, clip)
+    floor_rgb = tuple(int(v) for v in r_scene.integers(90, 190, size=3))
+    wall_rgb = tuple(int(v) for v in r_scene.integers(160, 235, size=3))
+
+    origins = forward_kinematics(subject, clip.root, clip.rotations)
+    kp_world = keypoints_world(subject, origins, clip.rotations)
+    joints3d = scene.to_camera(kp_world)
+    z = np.maximum(joints3d[..., 2], 1e-3)
+    joints2d = np.stack([fx * joints3d[..., 0] / z + cx, fy * joints3d[..., 1] / z + cy], -1)
+    in_image = ((joints2d[..., 0] >= 0) & (joints2d[..., 0] <= W - 1) & (joints2d[..., 1] >= 0)
+                & (joints2d[..., 1] <= H - 1) & (joints3d[..., 2] > 0.1))
+
+    # Occluders follow a smoothed box around the body (keypoints, head top, soles).
+    head_top = origins[:, SEG["head"]] + clip.rotations[:, SEG["head"]] @ np.array(
+        [0.0, 0.2, 0.0])
+    body = np.concatenate([kp_world, head_top[:, None]], axis=1)
+    bc = scene.to_camera(body)
+    buv = np.stack([fx * bc[..., 0] / np.maximum(bc[..., 2], 1e-3) + cx,
+                    fy * bc[..., 1] / np.maximum(bc[..., 2], 1e-3) + cy], -1)
+    boxes = person_boxes(buv)
+    rects = occluder_rects(rng(_OCCLUDER), boxes, int(occlusion_level), fps,
+                           area_fraction=occluder_area, anchors=buv[:, :N_KPT])
+
+    rays = pixel_rays_np(fx=fx, fy=fy, cx=cx, cy=cy, width=W, height=H)
+    rr = np.sum(rays * rays, axis=-1)
+    background = Background(scene, rays)
+    head_label = BODY_LABEL0 + [p.name for p in subject.primitives].index("head")
+    r_sensor, r_rgb = rng(_SENSOR), rng(_RGB)
+    depth = np.zeros((n_frames, H, W), np.uint16)
+    rgb = np.zeros((n_frames, H, W, 3), np.uint8) if with_rgb else None
+    occ_masks = np.zeros((n_frames, H, W), bool)
+    person = np.zeros((n_frames, H, W), bool)
+    self_vis = np.zeros((n_frames, N_KPT))
+    occ = np.zeros((n_frames, N_KPT))
+    K = (fx, fy, cx, cy)
+    for t in range(n_frames):
+        prims = primitives_camera(subject, origins[t], clip.rotations[t], scene)
+        ren = render_frame(prims, background, rays, rr, K)
+        person[t] = ren.label >= BODY_LABEL0
+        R_cam_head = scene.R_cam_world @ clip.rotations[t, SEG["head"]]
+        hair = hair_mask(ren, head_label, R_cam_head)
+        if sensor_noise:
+            d = simulate_sensor(r_sensor, ren.depth, fx=fx, fy=fy, cx=cx, cy=cy, config=scfg,
+                                normal=ren.normal, hair=hair)
+        else:
+            d = ideal_sensor(ren.depth, scfg)
+        m = rect_mask(rects[t], (H, W))
+        occ_masks[t] = m
+        d[m] = 0
+        depth[t] = d
+        if rgb is not None:
+            img = shade(ren, background, subject, hair, r_rgb, floor_rgb, wall_rgb)
+            img[m] = 0
+            rgb[t] = img
+        self_vis[t], occ[t] = _visibility(joints3d[t], joints2d[t], subject.kpt_radius,
+                                          subject.kpt_own, ren.label, ren.depth, m, fx, W, H)
+        if progress and (t % 10 == 0 or t == n_frames - 1):
+            el = time.perf_counter() - t_start
+            print(f"\rposetrack.synth: frame {t + 1}/{n_frames} ({el:.1f} s)", end="",
+                  file=sys.stderr, flush=True)
+    if progress:
+        print(file=sys.stderr)
+    centre_occ = np.array([[occ_masks[t, int(round(v)), int(round(u))]
+                            if in_image[t, k] else False
+                            for k, (u, v) in enumerate(joints2d[t])] for t in range(n_frames)])
+    visible = in_image & (self_vis >= 0.3) & ~centre_occ
+    if detector_noise:
+        kp2d, conf = simulate_detector(rng(_DETECTOR), joints2d, self_vis, occ, in_image,
+                                       width=W, height=H, config=dcfg)
+    else:
+        kp2d, conf = perfect_detector(joints2d, in_image)
+    meta = {
+        "motion": motion,
+        "motion_info": {k: v for k, v in clip.info.items()},
+        "seed": int(seed),
+        "n_frames": n_frames,
+        "fps": float(fps),
+        "occlusion_level": int(occlusion_level),
+        "occluder_area": float(occluder_area),
+        "occluder_rects": rects,
+        "sensor_noise": bool(sensor_noise),
+        "detector_noise": bool(detector_noise),
+        "sensor": dataclasses.asdict(scfg),
+        "detector": dataclasses.asdict(dcfg),
+        "scene": {
+            "camera_height": scene.camera_height, "tilt_deg": scene.tilt_deg,
+            "person_distance": scene.person_distance, "wall_distance": scene.wall_distance,
+            "side_wall": len(scene.planes) > 2,
+        },
+        "keypoint_names": KEYPOINT_NAMES,
+        "self_visibility": self_vis,
+        "occluded_fraction": occ,
+        "generation_seconds": time.perf_counter() - t_start,
+    }
+    return SyntheticSequence(
+        depth=depth, rgb=rgb, keypoints2d=kp2d, confidence=conf, joints3d=joints3d,
+        joints2d=joints2d, visible=visible, occluder_masks=occ_masks, person_mask=person,
+        intrinsics=intrinsics, fps=float(fps), T_cam_world=scene.T_cam_world,
+        floor_plane=scene.floor_plane_camera(), subject=subject.to_dict(), meta=meta,
+    )
