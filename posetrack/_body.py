@@ -154,9 +154,7 @@ class BodyShape(eqx.Module):
     @property
     def height(self) -> Array:
         """Approximate standing height (ankle to top of head plus a foot), metres."""
-        return (
-            self.shin + self.thigh + self.torso + self.head_scale * 0.25 + 0.07
-        )
+        return self.shin + self.thigh + self.torso + self.head_scale * 0.25 + 0.07
 
 
 _DEFAULTS = {
@@ -248,7 +246,7 @@ NUM_CAPSULES = len(CAPSULE_NAMES)
 
 def capsule_offsets(
     shape: BodyShape,
-) -> tuple[Float[Array, "prim 3"], Float[Array, "prim 3"], Float[Array, "prim"]]:
+) -> tuple[Float[Array, "prim 3"], Float[Array, "prim 3"], Float[Array, " prim"]]:
     """Capsule endpoints ``a``, ``b`` in their frames (``CAPSULE_FRAMES``) and radii, metres."""
     z = jnp.zeros_like(shape.torso)
     t, sw, hw, s = shape.torso, shape.shoulder_width, shape.hip_width, shape.head_scale
@@ -288,10 +286,10 @@ def capsule_offsets(
 # ---------------------------------------------------------------------------------------------
 
 # Frames grouped by depth in the tree, so the chain is two batched matmuls, not nine.
-_LEVEL1 = np.array([1, 2, 4, 6, 8])
-_LEVEL2 = np.array([3, 5, 7, 9])
-_LEVEL2_PARENT = np.array([2, 4, 6, 8])
-_ORDER = np.argsort(np.concatenate([[0], _LEVEL1, _LEVEL2]))
+_LEVEL1 = np.array([1, 2, 4, 6, 8], np.int32)
+_LEVEL2 = np.array([3, 5, 7, 9], np.int32)
+_LEVEL2_PARENT = np.array([2, 4, 6, 8], np.int32)
+_ORDER = np.argsort(np.concatenate([[0], _LEVEL1, _LEVEL2])).astype(np.int32)
 
 
 def _ancestors() -> np.ndarray:
@@ -306,7 +304,7 @@ def _ancestors() -> np.ndarray:
 
 
 _ANCESTORS = _ancestors()
-_PARENT_OR_SELF = np.array([max(p, 0) for p in JOINT_PARENTS])
+_PARENT_OR_SELF = np.array([max(p, 0) for p in JOINT_PARENTS], np.int32)
 
 
 def _frames(joint_offs: Array, params: Array):
@@ -320,7 +318,7 @@ def _frames(joint_offs: Array, params: Array):
     c1 = t[None, :] + jnp.einsum("ab,jb->ja", R0, joint_offs[_LEVEL1])
     # Level-1 frames are stored in _LEVEL1 order; their parents for level 2 are at known spots.
     pos = {int(j): i for i, j in enumerate(_LEVEL1)}
-    par = np.array([pos[int(p)] for p in _LEVEL2_PARENT])
+    par = np.array([pos[int(p)] for p in _LEVEL2_PARENT], np.int32)
     Rw2 = jnp.einsum("jab,jbc->jac", Rw1[par], R[_LEVEL2])
     c2 = c1[par] + jnp.einsum("jab,jb->ja", Rw1[par], joint_offs[_LEVEL2])
     Rw = jnp.concatenate([R0[None], Rw1, Rw2])[_ORDER]
@@ -347,7 +345,7 @@ def _omega_matrix(qn: Array) -> Array:
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _posed_points(frames: tuple[int, ...], joint_offs: Array, local: Array, params: Array) -> Array:
     Rw, c, _, _ = _frames(joint_offs, params)
-    f = np.asarray(frames)
+    f = np.asarray(frames, np.int32)
     return c[f] + jnp.einsum("mab,mb->ma", Rw[f], local)
 
 
@@ -358,7 +356,7 @@ def _posed_points_jvp(frames, primals, tangents):
     # when optimistix vmaps it over the 43 basis tangents.
     joint_offs, local, params = primals
     d_offs, d_local, d_params = tangents
-    f = np.asarray(frames)
+    f = np.asarray(frames, np.int32)
     Rw, c, qn, qnorm = _frames(joint_offs, params)
     p = c[f] + jnp.einsum("mab,mb->ma", Rw[f], local)
     anc = jnp.asarray(_ANCESTORS[f], dtype=p.dtype)  # (M, joint)
@@ -388,7 +386,7 @@ def _posed_points_jvp(frames, primals, tangents):
 _posed_points.defjvp(_posed_points_jvp, symbolic_zeros=True)
 
 
-def keypoints(shape: BodyShape, params: Float[Array, "43"]) -> Float[Array, "kpt 3"]:
+def keypoints(shape: BodyShape, params: Float[Array, 43]) -> Float[Array, "kpt 3"]:
     """Forward kinematics: the 18 COCO-18 keypoints M_i in the camera frame, metres.
 
     Args:
@@ -402,8 +400,8 @@ def keypoints(shape: BodyShape, params: Float[Array, "43"]) -> Float[Array, "kpt
 
 
 def capsules(
-    shape: BodyShape, params: Float[Array, "43"]
-) -> tuple[Float[Array, "prim 3"], Float[Array, "prim 3"], Float[Array, "prim"]]:
+    shape: BodyShape, params: Float[Array, 43]
+) -> tuple[Float[Array, "prim 3"], Float[Array, "prim 3"], Float[Array, " prim"]]:
     """The posed surface: capsule endpoints ``a``, ``b`` (camera frame, metres) and radii."""
     a, b, radius = capsule_offsets(shape)
     frames = CAPSULE_FRAMES + CAPSULE_FRAMES
@@ -412,7 +410,7 @@ def capsules(
 
 
 def joint_frames(
-    shape: BodyShape, params: Float[Array, "43"]
+    shape: BodyShape, params: Float[Array, 43]
 ) -> tuple[Float[Array, "joint 3 3"], Float[Array, "joint 3"]]:
     """World (camera-frame) rotation and origin of each of the 10 kinematic frames."""
     Rw, c, _, _ = _frames(joint_offsets(shape), params)
@@ -425,10 +423,10 @@ def joint_frames(
 
 
 def make_params(
-    translation: Float[Array, "3"],
-    root_quat: Float[Array, "4"],
+    translation: Float[Array, 3],
+    root_quat: Float[Array, 4],
     joint_quats: Float[Array, "9 4"] | None = None,
-) -> Float[Array, "43"]:
+) -> Float[Array, 43]:
     """Assemble the 43-vector from root translation (metres), root quaternion and the 9 joint
     quaternions (wxyz; identity = rest pose when omitted)."""
     translation = jnp.asarray(translation)
@@ -436,11 +434,15 @@ def make_params(
     if joint_quats is None:
         joint_quats = jnp.tile(jnp.asarray([1.0, 0.0, 0.0, 0.0], dtype=dtype), (9, 1))
     return jnp.concatenate(
-        [translation, jnp.asarray(root_quat, dtype=dtype), jnp.asarray(joint_quats, dtype=dtype).reshape(-1)]
+        [
+            translation,
+            jnp.asarray(root_quat, dtype=dtype),
+            jnp.asarray(joint_quats, dtype=dtype).reshape(-1),
+        ]
     )
 
 
-def facing_camera_params(distance: float = 2.5, dtype=None) -> Float[Array, "43"]:
+def facing_camera_params(distance: float = 2.5, dtype=None) -> Float[Array, 43]:
     """Rest pose standing upright ``distance`` metres in front of the camera, facing it.
 
     The body frame's up (+y) maps to the camera's -y and its forward (+z) to the camera's -z,
@@ -448,7 +450,8 @@ def facing_camera_params(distance: float = 2.5, dtype=None) -> Float[Array, "43"
     """
     dtype = dtype or float
     return make_params(
-        jnp.asarray([0.0, 0.0, distance], dtype=dtype), jnp.asarray([0.0, 1.0, 0.0, 0.0], dtype=dtype)
+        jnp.asarray([0.0, 0.0, distance], dtype=dtype),
+        jnp.asarray([0.0, 1.0, 0.0, 0.0], dtype=dtype),
     )
 
 

@@ -75,9 +75,7 @@ class Intrinsics(eqx.Module):
     def as_matrix(self) -> Float[Array, "3 3"]:
         """The 3x3 matrix K."""
         zero, one = jnp.zeros_like(self.fx), jnp.ones_like(self.fx)
-        return jnp.array(
-            [[self.fx, zero, self.cx], [zero, self.fy, self.cy], [zero, zero, one]]
-        )
+        return jnp.array([[self.fx, zero, self.cx], [zero, self.fy, self.cy], [zero, zero, one]])
 
     def scaled(self, width: int, height: int) -> Intrinsics:
         """Intrinsics of the same camera resampled to a ``width`` x ``height`` image.
@@ -107,9 +105,7 @@ class Intrinsics(eqx.Module):
         }
 
 
-def project(
-    intrinsics: Intrinsics, points: Float[Array, "*batch 3"]
-) -> Float[Array, "*batch 2"]:
+def project(intrinsics: Intrinsics, points: Float[Array, "*batch 3"]) -> Float[Array, "*batch 2"]:
     """Project camera-frame points (metres) to pixels (u, v).
 
     Points at or behind the camera plane are clamped to z = 1 mm so the result stays finite;

@@ -54,7 +54,7 @@ class FitSettings:
 class FitResult(eqx.Module):
     """Outcome of one fit. Failure is data: ``ok`` is False and ``params`` is the start pose."""
 
-    params: Float[Array, "43"]
+    params: Float[Array, 43]
     """Fitted pose (quaternions unit, w >= 0)."""
     cost: Float[Array, ""]
     """Final value of the landmark term (sum of squared residuals without regularisers)."""
@@ -75,13 +75,13 @@ def _residual_fn(params, args):
 
 
 def fit_pose(
-    start_params: Float[Array, "43"],
+    start_params: Float[Array, 43],
     shape: BodyShape,
     landmarks: Landmarks,
     intrinsics: Intrinsics,
     *,
-    use3d: Bool[Array, "kpt"],
-    use2d: Bool[Array, "kpt"],
+    use3d: Bool[Array, " kpt"],
+    use2d: Bool[Array, " kpt"],
     settings: FitSettings = FitSettings(),
 ) -> FitResult:
     """Minimise Eq. (1) over the 43 pose parameters, starting from ``start_params``.

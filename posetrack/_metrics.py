@@ -81,9 +81,7 @@ def accuracy(
     )
 
 
-def success_curve(
-    estimate: np.ndarray, truth: np.ndarray, thresholds_mm: np.ndarray
-) -> np.ndarray:
+def success_curve(estimate: np.ndarray, truth: np.ndarray, thresholds_mm: np.ndarray) -> np.ndarray:
     """C_j(d) for an array of thresholds (the paper's Fig. 3 curve)."""
     err = joint_errors(estimate, truth) * 1000.0
     err = np.where(np.isfinite(err), err, np.inf).reshape(-1)

@@ -21,20 +21,20 @@ class Landmarks(eqx.Module):
 
     keypoints2d: Float[Array, "kpt 2"]
     """o_i: detected 2D keypoints, pixels (zeros where not detected)."""
-    confidence: Float[Array, "kpt"]
+    confidence: Float[Array, " kpt"]
     """Detector confidence in [0, 1] (0 where not detected)."""
     points3d: Float[Array, "kpt 3"]
     """O_i: lifted 3D landmarks, metres, camera frame (zeros where F_i is false)."""
-    detected: Bool[Array, "kpt"]
+    detected: Bool[Array, " kpt"]
     """f_i: the keypoint was detected (confidence above threshold, finite, inside the image)."""
-    has_depth: Bool[Array, "kpt"]
+    has_depth: Bool[Array, " kpt"]
     """F_i: detected and valid depth was found around it."""
 
 
 def lift_keypoints(
     depth: Float[Array, "H W"],
     keypoints2d: Float[Array, "kpt 2"],
-    confidence: Float[Array, "kpt"],
+    confidence: Float[Array, " kpt"],
     intrinsics: Intrinsics,
     *,
     window: int = 5,
@@ -42,7 +42,7 @@ def lift_keypoints(
     min_depth: float = 0.2,
     max_depth: float = 10.0,
     min_valid: int = 3,
-    depth_offset: Float[Array, "kpt"] | float = 0.0,
+    depth_offset: Float[Array, " kpt"] | float = 0.0,
 ) -> Landmarks:
     """Lift detected 2D keypoints to 3D with a depth map. Jittable; one frame.
 

@@ -61,8 +61,8 @@ class ResidualSettings:
 
 
 def pixel_scale(
-    start_params: Float[Array, "43"], shape: BodyShape, intrinsics: Intrinsics
-) -> Float[Array, "kpt"]:
+    start_params: Float[Array, 43], shape: BodyShape, intrinsics: Intrinsics
+) -> Float[Array, " kpt"]:
     """Metres per pixel at each keypoint's depth in the starting pose: ``z_i / f``."""
     z = keypoints(shape, start_params)[:, 2]
     f = jnp.sqrt(intrinsics.fx * intrinsics.fy)
@@ -70,14 +70,14 @@ def pixel_scale(
 
 
 def landmark_residuals(
-    params: Float[Array, "43"],
+    params: Float[Array, 43],
     shape: BodyShape,
     landmarks: Landmarks,
     intrinsics: Intrinsics,
     *,
-    use3d: Bool[Array, "kpt"],
-    use2d: Bool[Array, "kpt"],
-    metres_per_pixel: Float[Array, "kpt"],
+    use3d: Bool[Array, " kpt"],
+    use2d: Bool[Array, " kpt"],
+    metres_per_pixel: Float[Array, " kpt"],
     settings: ResidualSettings,
 ) -> Float[Array, "kpt 5"]:
     """Per-keypoint residuals of Eq. (1): 3 metric 3D components, then 2 scaled 2D ones.
@@ -104,8 +104,8 @@ def _sqrt_reweight(e: Array, eps: float) -> Array:
 
 
 def regulariser_residuals(
-    params: Float[Array, "43"], start_params: Float[Array, "43"], settings: ResidualSettings
-) -> Float[Array, "53"]:
+    params: Float[Array, 43], start_params: Float[Array, 43], settings: ResidualSettings
+) -> Float[Array, 53]:
     """``unit_weight (|q_j|^2 - 1)`` for the 10 quaternions and ``prior_weight (x - x_start)``."""
     q = params[3:].reshape(NUM_JOINTS, 4)
     unit = settings.unit_weight * (jnp.sum(q * q, axis=-1) - 1.0)

@@ -40,7 +40,9 @@ def quat_to_matrix(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3 3"]:
     return jnp.stack(rows, axis=-2)
 
 
-def quat_multiply(p: Float[Array, "*batch 4"], q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 4"]:
+def quat_multiply(
+    p: Float[Array, "*batch 4"], q: Float[Array, "*batch 4"]
+) -> Float[Array, "*batch 4"]:
     """Hamilton product ``p * q`` (wxyz): rotating by ``q`` first, then ``p``."""
     pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
     qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
@@ -60,7 +62,9 @@ def quat_conjugate(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 4"]:
     return q * jnp.asarray([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
-def quat_angle(q1: Float[Array, "*batch 4"], q2: Float[Array, "*batch 4"]) -> Float[Array, "*batch"]:
+def quat_angle(
+    q1: Float[Array, "*batch 4"], q2: Float[Array, "*batch 4"]
+) -> Float[Array, "*batch"]:
     """Rotation angle (radians) between two unit quaternions (wxyz); ``q`` and ``-q`` are equal."""
     d = jnp.abs(jnp.sum(q1 * q2, axis=-1))
     return 2.0 * jnp.arccos(jnp.clip(d, 0.0, 1.0))
@@ -101,16 +105,36 @@ def np_matrix_to_quat(m: np.ndarray) -> np.ndarray:
         tr = np.trace(r)
         if tr > 0:
             s = np.sqrt(tr + 1.0) * 2
-            q = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
+            q = [
+                0.25 * s,
+                (r[2, 1] - r[1, 2]) / s,
+                (r[0, 2] - r[2, 0]) / s,
+                (r[1, 0] - r[0, 1]) / s,
+            ]
         elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
             s = np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-            q = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
+            q = [
+                (r[2, 1] - r[1, 2]) / s,
+                0.25 * s,
+                (r[0, 1] + r[1, 0]) / s,
+                (r[0, 2] + r[2, 0]) / s,
+            ]
         elif r[1, 1] > r[2, 2]:
             s = np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-            q = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
+            q = [
+                (r[0, 2] - r[2, 0]) / s,
+                (r[0, 1] + r[1, 0]) / s,
+                0.25 * s,
+                (r[1, 2] + r[2, 1]) / s,
+            ]
         else:
             s = np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-            q = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
+            q = [
+                (r[1, 0] - r[0, 1]) / s,
+                (r[0, 2] + r[2, 0]) / s,
+                (r[1, 2] + r[2, 1]) / s,
+                0.25 * s,
+            ]
         q = np.asarray(q)
         out[i] = q if q[0] >= 0 else -q
     return out.reshape(*batch, 4)

@@ -129,8 +129,12 @@ def test_quaternion_sign_and_scale_do_not_matter():
     scaled = p.copy()
     scaled[3:] *= 3.7
     k0 = np.asarray(B.keypoints(shape, jnp.asarray(p, jnp.float32)))
-    np.testing.assert_allclose(np.asarray(B.keypoints(shape, jnp.asarray(flipped, jnp.float32))), k0, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(B.keypoints(shape, jnp.asarray(scaled, jnp.float32))), k0, atol=1e-5)
+    np.testing.assert_allclose(
+        np.asarray(B.keypoints(shape, jnp.asarray(flipped, jnp.float32))), k0, atol=1e-5
+    )
+    np.testing.assert_allclose(
+        np.asarray(B.keypoints(shape, jnp.asarray(scaled, jnp.float32))), k0, atol=1e-5
+    )
 
 
 def test_zero_quaternion_is_identity_with_finite_gradients():
@@ -204,13 +208,20 @@ def test_shape_jacobian_matches_finite_differences():
             s = jax.tree.unflatten(treedef, [jnp.asarray(v) for v in x])
             a, b, r = B.capsules(s, jnp.asarray(p))
             return np.concatenate(
-                [np.asarray(B.keypoints(s, jnp.asarray(p))).ravel(), np.asarray(a).ravel(), np.asarray(b).ravel(), np.asarray(r)]
+                [
+                    np.asarray(B.keypoints(s, jnp.asarray(p))).ravel(),
+                    np.asarray(a).ravel(),
+                    np.asarray(b).ravel(),
+                    np.asarray(r),
+                ]
             )
 
         def f_jax(x):
             s = jax.tree.unflatten(treedef, list(x))
             a, b, r = B.capsules(s, jnp.asarray(p))
-            return jnp.concatenate([B.keypoints(s, jnp.asarray(p)).ravel(), a.ravel(), b.ravel(), r])
+            return jnp.concatenate(
+                [B.keypoints(s, jnp.asarray(p)).ravel(), a.ravel(), b.ravel(), r]
+            )
 
         fd = _central_difference(f_shape, x0)
         J = np.asarray(jax.jacfwd(f_jax)(jnp.asarray(x0)))
@@ -224,7 +235,9 @@ def test_capsule_jacobian_wrt_pose_matches_finite_differences():
         shape = B.BodyShape.default(dtype=jnp.float64)
         f = lambda x: np.asarray(jnp.concatenate(B.capsules(shape, jnp.asarray(x))[:2])).ravel()  # noqa: E731
         fd = _central_difference(f, p)
-        J = np.asarray(jax.jacfwd(lambda x: jnp.concatenate(B.capsules(shape, x)[:2]).ravel())(jnp.asarray(p)))
+        J = np.asarray(
+            jax.jacfwd(lambda x: jnp.concatenate(B.capsules(shape, x)[:2]).ravel())(jnp.asarray(p))
+        )
     np.testing.assert_allclose(J, fd, atol=1e-6)
 
 

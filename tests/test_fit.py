@@ -52,16 +52,24 @@ def test_lm_recovers_known_pose_from_noise_free_landmarks(fit_jit, loss):
         true = _true_pose(seed)
         start = true + 0.04 * jax.random.normal(jax.random.PRNGKey(seed), (43,))
         all_ = jnp.ones(18, bool)
-        res = fit_jit(start, shape, _landmarks(shape, true), INTR, use3d=all_, use2d=all_, settings=settings)
-        err = np.linalg.norm(np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1)
+        res = fit_jit(
+            start, shape, _landmarks(shape, true), INTR, use3d=all_, use2d=all_, settings=settings
+        )
+        err = np.linalg.norm(
+            np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1
+        )
         assert bool(res.ok)
         assert err.max() < 0.005, f"seed {seed}: max keypoint error {err.max() * 1000:.2f} mm"
         # Keypoints seen only in 2D: their depth along the ray is ambiguous, their image is not.
         two_d = (4, 10, 16)
         lm = _landmarks(shape, true, depth_missing=two_d)
         res = fit_jit(start, shape, lm, INTR, use3d=all_, use2d=all_, settings=settings)
-        px = np.linalg.norm(np.asarray(project(INTR, B.keypoints(shape, res.params)) - lm.keypoints2d), axis=-1)
-        err = np.linalg.norm(np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1)
+        px = np.linalg.norm(
+            np.asarray(project(INTR, B.keypoints(shape, res.params)) - lm.keypoints2d), axis=-1
+        )
+        err = np.linalg.norm(
+            np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1
+        )
         assert px.max() < 0.5, f"seed {seed}: reprojection error {px.max():.2f} px"
         assert np.delete(err, two_d).max() < 0.005
 
@@ -115,9 +123,18 @@ def test_initialisation_from_observations_alone(fit_jit):
         p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), shape)
         assert p0 is not None
         all_ = jnp.ones(18, bool)
-        res = fit_jit(jnp.asarray(p0, jnp.float32), shape, lm, INTR, use3d=all_, use2d=all_,
-                      settings=FitSettings(max_steps=60))
-        err = np.linalg.norm(np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1)
+        res = fit_jit(
+            jnp.asarray(p0, jnp.float32),
+            shape,
+            lm,
+            INTR,
+            use3d=all_,
+            use2d=all_,
+            settings=FitSettings(max_steps=60),
+        )
+        err = np.linalg.norm(
+            np.asarray(B.keypoints(shape, res.params) - B.keypoints(shape, true)), axis=-1
+        )
         assert err[list(B.BODY_JOINTS)].max() < 0.01, f"seed {seed}: {err.max() * 1000:.1f} mm"
 
 
@@ -130,8 +147,15 @@ def test_initial_pose_needs_a_torso():
 
 
 def test_shape_estimation_recovers_a_different_person():
-    truth = B.BodyShape.create(upper_arm=0.33, forearm=0.28, thigh=0.48, shin=0.46, torso=0.58,
-                               shoulder_width=0.2, hip_width=0.12)
+    truth = B.BodyShape.create(
+        upper_arm=0.33,
+        forearm=0.28,
+        thigh=0.48,
+        shin=0.46,
+        torso=0.58,
+        shoulder_width=0.2,
+        hip_width=0.12,
+    )
     pts, flags = [], []
     rng = np.random.default_rng(0)
     for seed in range(10):

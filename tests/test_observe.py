@@ -47,7 +47,9 @@ def test_lifting_known_answers(lift):
             (np.nan, 10.0, 0.9),  # 5: NaN coordinate -> not detected
         ]
     )
-    lm = lift(jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3)
+    lm = lift(
+        jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3
+    )
     detected = np.asarray(lm.detected)
     has_depth = np.asarray(lm.has_depth)
     np.testing.assert_array_equal(detected[:6], [True, True, True, False, False, False])
@@ -55,15 +57,21 @@ def test_lifting_known_answers(lift):
     assert not detected[6:].any()  # confidence 0
     P = np.asarray(lm.points3d)
     # Back-projection: X = (u - cx) / fx * z.
-    np.testing.assert_allclose(P[0], [(20 - 39.5) / 100 * 1.5, (21 - 29.5) / 100 * 1.5, 1.5], atol=1e-5)
-    np.testing.assert_allclose(P[1], [(60 - 39.5) / 100 * 3.0, (5 - 29.5) / 100 * 3.0, 3.0], atol=1e-5)
+    np.testing.assert_allclose(
+        P[0], [(20 - 39.5) / 100 * 1.5, (21 - 29.5) / 100 * 1.5, 1.5], atol=1e-5
+    )
+    np.testing.assert_allclose(
+        P[1], [(60 - 39.5) / 100 * 3.0, (5 - 29.5) / 100 * 3.0, 3.0], atol=1e-5
+    )
     assert np.all(P[~has_depth] == 0) and np.isfinite(P).all()
 
 
 def test_median_picks_the_majority_surface(lift):
     """A keypoint at the box edge: the median follows the majority of valid depths."""
     kp, conf = _kp([(30.0, 25.0, 1.0), (29.0, 25.0, 1.0)])  # column 30 is wall, 29 is box
-    lm = lift(jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3)
+    lm = lift(
+        jnp.asarray(_scene()), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5, min_valid=3
+    )
     z = np.asarray(lm.points3d)[:, 2]
     # Window over columns 28..32: 2 box columns, 3 wall columns -> wall; 27..31: 3 box -> box.
     assert z[0] == pytest.approx(3.0) and z[1] == pytest.approx(1.5)

@@ -1,0 +1,147 @@
+"""Landmark selection weights and weighted subset sampling of the MHT (paper section 2.2).
+
+For each hypothesis h, each landmark i gets a 3D selection weight W_i and a 2D weight w_i:
+
+* random exclusion: ``W^r = 1 - R``, ``w^r = 1 - r``;
+* model geometry: ``W^g = exp(-d_g / (2 sigma_g^2))``, d_g in [0, 1] (see :func:`geometry_distance`);
+* temporal continuity: ``W^h = exp(-d_h / (2 sigma_h^2))`` with
+  ``d_h = min(|O_i,t - M^h_i,t-1|, d_hmax) / d_hmax``;
+* 2D weights from 3D ones: ``w = l W + (1 - l)``, l = 0.33;
+* combination by min: ``W = min(W^r, W^g, W^h)``, ``w = min(w^r, w^g, w^h)`` (MHT_r uses only the
+  random term, MHT_g adds geometry, MHT_h adds temporal continuity).
+
+Then ``S = floor(sum_i W_i)`` 3D and ``s = floor(sum_i w_i)`` 2D landmarks are drawn by weighted
+random sampling without replacement (Gumbel top-k: add Gumbel noise to ``log W`` and keep the
+S largest; exactly sequential weighted sampling without replacement, with static shapes).
+
+Weights are zero where there is nothing to select (no depth for W, no detection for w).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, PRNGKeyArray
+
+from ._body import KEYPOINT_PARENTS as _PARENTS_WITH_ROOT
+from ._camera import Intrinsics, project
+from ._observe import Landmarks
+
+L_2D = 0.33
+"""The paper's l: ``w = l W + (1 - l)``, so about 1 in 3 excluded 3D landmarks also loses its 2D one."""
+
+#: Partner keypoint of each keypoint for the geometric test: its skeleton parent; the neck, whose
+#: parent is the hips' midpoint, is paired with the right hip (the neck-hip distance is rigid in
+#: the model too). Every pair lies on one rigid part of the model, so its length is constant.
+GEOMETRY_PARTNER = tuple(8 if p < 0 else p for p in _PARENTS_WITH_ROOT)
+
+_LINE_SAMPLES = np.linspace(0.2, 0.8, 4)
+
+
+def geometry_distance(
+    landmarks: Landmarks,
+    partner_points: Float[Array, "kpt 3"],
+    partner_valid: Bool[Array, " kpt"],
+    rest_lengths: Float[Array, " kpt"],
+    part_radius: Float[Array, " kpt"],
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    *,
+    length_tolerance: float = 0.35,
+    line_tolerance: float = 0.10,
+) -> Float[Array, " kpt"]:
+    """The normalised geometric discrepancy d_g in [0, 1] of each 3D landmark.
+
+    For landmark O_i and its partner point P (the observed partner landmark where it has depth,
+    else the hypothesis' previous model keypoint), two terms, each in [0, 1]:
+
+    * length: ``min(| |O_i - P| - L_i | / (length_tolerance * L_i), 1)``, where L_i is the
+      model's distance between the two keypoints (a bone length);
+    * line: the segment from P to O_i should lie on the body, so the depth observed where its
+      interior points (20-80 % along it) project should be that of the segment less the part's
+      radius (the sensor sees the surface in front of the axis). Per sample
+      ``min(|z_obs - (z_seg - r)|, line_tolerance) / line_tolerance``, averaged; samples
+      without valid depth count as the full 1 (a limb cannot lie where the sensor sees nothing).
+
+    ``d_g = (length + line) / 2``: 0 when both agree with the model, 1 when both are off by
+    more than their tolerance. Keypoints without depth get d_g = 1 (their W is zero anyway).
+
+    Args:
+        landmarks: this frame's lifted landmarks.
+        partner_points: (kpt, 3) partner point for each keypoint, metres.
+        partner_valid: (kpt,) whether the partner point exists at all.
+        rest_lengths: (kpt,) the model's distance to the partner, metres.
+        part_radius: (kpt,) radius of the body part between them, metres.
+        depth: (H, W) observed depth, metres (0 / NaN invalid), at ``intrinsics``' size.
+        intrinsics: the camera of ``depth``.
+        length_tolerance: relative length error that counts as a full mismatch.
+        line_tolerance: depth error (metres) that counts as a full mismatch along the line.
+    """
+    obs = landmarks.points3d
+    length = jnp.linalg.norm(obs - partner_points, axis=-1)
+    d_len = jnp.minimum(jnp.abs(length - rest_lengths) / (length_tolerance * rest_lengths), 1.0)
+    t = jnp.asarray(_LINE_SAMPLES, obs.dtype)
+    seg = partner_points[:, None, :] + t[None, :, None] * (obs - partner_points)[:, None, :]
+    uv = project(intrinsics, seg)  # (kpt, samples, 2)
+    H, W = depth.shape
+    col = jnp.clip(jnp.round(uv[..., 0]).astype(jnp.int32), 0, W - 1)
+    row = jnp.clip(jnp.round(uv[..., 1]).astype(jnp.int32), 0, H - 1)
+    inside = (
+        (uv[..., 0] > -0.5) & (uv[..., 0] < W - 0.5) & (uv[..., 1] > -0.5) & (uv[..., 1] < H - 0.5)
+    )
+    z_obs = depth[row, col]
+    valid = inside & jnp.isfinite(z_obs) & (z_obs > 0)
+    expected = seg[..., 2] - part_radius[:, None]
+    err = jnp.minimum(jnp.abs(jnp.where(valid, z_obs, 0.0) - expected), line_tolerance)
+    d_line = jnp.mean(jnp.where(valid, err / line_tolerance, 1.0), axis=-1)
+    d_g = 0.5 * (d_len + d_line)
+    return jnp.where(
+        landmarks.has_depth & partner_valid, d_g, jnp.where(landmarks.has_depth, d_len, 1.0)
+    )
+
+
+def temporal_distance(
+    landmarks: Landmarks,
+    previous: Float[Array, "kpt 3"],
+    intrinsics: Intrinsics,
+    *,
+    d_hmax: float,
+) -> tuple[Float[Array, " kpt"], Float[Array, " kpt"]]:
+    """d_h of the paper for the 3D landmarks, and its 2D counterpart.
+
+    3D: ``min(|O_i,t - M^h_i,t-1|, d_hmax) / d_hmax``. 2D (for keypoints detected without depth,
+    an extension of the paper, which defines d_h on 3D landmarks only): the pixel distance
+    between o_i and the projection of M^h_i,t-1, converted to metres at that keypoint's depth,
+    truncated and normalised the same way.
+    """
+    d3 = jnp.linalg.norm(landmarks.points3d - previous, axis=-1)
+    m = project(intrinsics, previous)
+    f = jnp.sqrt(intrinsics.fx * intrinsics.fy)
+    d2 = jnp.linalg.norm(m - landmarks.keypoints2d, axis=-1) * jnp.maximum(previous[:, 2], 0.2) / f
+    return jnp.minimum(d3, d_hmax) / d_hmax, jnp.minimum(d2, d_hmax) / d_hmax
+
+
+def gaussian_weight(d: Array, sigma: float) -> Array:
+    """``exp(-d / (2 sigma^2))`` as in the paper."""
+    return jnp.exp(-d / (2.0 * sigma * sigma))
+
+
+def sample_subset(
+    key: PRNGKeyArray, weights: Float[Array, " kpt"], available: Bool[Array, " kpt"]
+) -> Bool[Array, " kpt"]:
+    """Draw ``floor(sum(weights))`` of the available items without replacement, with
+    probabilities proportional to ``weights`` (Gumbel top-k). Weights outside ``available`` are
+    ignored (treated as 0).
+
+    Returns:
+        (kpt,) boolean selection mask.
+    """
+    w = jnp.where(available, weights, 0.0)
+    count = jnp.floor(jnp.sum(w) + 1e-6).astype(jnp.int32)
+    # Gumbel top-k: the k largest of log w + Gumbel are a weighted sample without replacement.
+    # Zero weights get -inf keys (safe log), so they are never drawn while weight remains.
+    safe = jnp.where(w > 0, w, 1.0)
+    keys = jnp.where(w > 0, jnp.log(safe) + jax.random.gumbel(key, w.shape, w.dtype), -jnp.inf)
+    rank = jnp.argsort(jnp.argsort(-keys))
+    return (rank < count) & (w > 0)

@@ -1,0 +1,442 @@
+"""The host-side tracker: input checks, body shape, (re-)initialisation, track loss, progress.
+
+The per-frame math is :func:`posetrack._step.tracker_step`, one jitted call per frame. This
+module keeps what is naturally sequential and rare: estimating the body dimensions from the
+first frames, initialising from observations alone, deciding that a track is lost and
+re-initialising when observations return.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Sequence
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import _body as body
+from ._camera import Intrinsics
+from ._depthobs import fit_floor_plane
+from ._fit import FitSettings, fit_pose
+from ._init import estimate_shape, initial_pose
+from ._observe import Landmarks
+from ._progress import Progress
+from ._step import (
+    LOST,
+    NO_FLOOR,
+    NO_OBSERVATION,
+    STATUS_NAMES,
+    TRACKED,
+    ConfigView,
+    FrameEstimate,
+    TrackerConfig,
+    TrackState,
+    _landmarks,
+    split_config,
+    tracker_step,
+)
+
+_DTYPE = jnp.float32
+
+
+# Module-level jitted functions: compiled once per (config, shapes) and shared by every Tracker.
+@partial(jax.jit, static_argnums=0)
+def _jit_step(static, tunables, shape, intrinsics, floor, state, depth, kp2d, conf):
+    config = ConfigView(static, tunables)
+    return tracker_step(config, shape, intrinsics, floor, state, depth, kp2d, conf)
+
+
+@partial(jax.jit, static_argnums=0)
+def _jit_lift(static, tunables, shape, intrinsics, depth, kp2d, conf):
+    return _landmarks(ConfigView(static, tunables), shape, intrinsics, depth, kp2d, conf)
+
+
+@partial(jax.jit, static_argnums=0)
+def _jit_init_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks):
+    res = fit_pose(
+        params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
+    )
+    return res, body.keypoints(shape, res.params)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackResult:
+    """A tracked sequence (NumPy arrays over frames T)."""
+
+    keypoints3d: np.ndarray
+    """(T, 18, 3) metres, camera frame, COCO-18; NaN where not estimated (before the first
+    initialisation)."""
+    params: np.ndarray
+    """(T, 43) pose parameters (never NaN: frames without an estimate repeat the nearest one)."""
+    delta: np.ndarray
+    """(T,) Delta of the output pose (Eq. (3)); NaN where not estimated."""
+    status: np.ndarray
+    """(T,) int8: 0 tracked, 1 lost, 2 no observation (``STATUS_NAMES``)."""
+    confidence: np.ndarray
+    """(T, 18) per-keypoint confidence in [0, 1] (see :func:`keypoint_confidence`)."""
+    landmarks3d: np.ndarray
+    """(T, 18, 3) lifted landmarks O_i (zeros where F_i is false)."""
+    has_depth: np.ndarray
+    """(T, 18) F_i flags."""
+    detected: np.ndarray
+    """(T, 18) f_i flags."""
+    shape: body.BodyShape
+    """Body dimensions used."""
+    config: TrackerConfig
+    """The tracker's configuration."""
+    compile_s: float
+    """Seconds spent compiling (first calls of the jitted functions)."""
+    ms_per_frame: float
+    """Median wall time of a steady-state tracker step, milliseconds."""
+
+    @property
+    def status_names(self) -> list[str]:
+        return [STATUS_NAMES[s] for s in self.status]
+
+
+def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
+    """Per-keypoint confidence in [0, 1] of one frame's estimate.
+
+    ``support * agreement``: support is 1 for a keypoint whose 3D landmark the selected
+    hypothesis used, 0.7 if it was only detected in 2D, 0.3 if it was not observed (the pose
+    there is inferred from the rest of the body and the previous frame); agreement is
+    ``exp(-(spread / 5 cm)^2)`` with spread the median distance of the other hypotheses' keypoint
+    from the selected one (1 for LVM). It is a relative indicator for weighting and display,
+    not a calibrated probability.
+    """
+    used = np.asarray(est.used3d)[int(est.best)]
+    lm = est.landmarks
+    support = np.where(used, 1.0, np.where(np.asarray(lm.detected), 0.7, 0.3))
+    agreement = np.exp(-((np.asarray(est.spread) / 0.05) ** 2))
+    return (support * agreement).astype(np.float32)
+
+
+def _check_frame(
+    intrinsics: Intrinsics, depth, keypoints2d, confidence, depth_scale: float, where: str
+):
+    """Validate one frame at the public boundary; returns float32 arrays (metres)."""
+    depth = np.asarray(depth)
+    if depth.size == 0:
+        raise ValueError(f"{where}: depth is empty (shape {depth.shape})")
+    if depth.ndim != 2:
+        raise ValueError(f"{where}: depth must be a 2D (H, W) array, got shape {depth.shape}")
+    if depth.shape != intrinsics.shape:
+        raise ValueError(
+            f"{where}: depth shape {depth.shape} does not match the intrinsics' image "
+            f"{intrinsics.height}x{intrinsics.width} (H x W)"
+        )
+    if depth.dtype == np.uint16:
+        depth_m = depth.astype(np.float32) / np.float32(depth_scale)
+    elif np.issubdtype(depth.dtype, np.floating):
+        depth_m = depth.astype(np.float32)
+    else:
+        raise ValueError(
+            f"{where}: depth dtype must be uint16 (sensor units, see depth_scale) or float "
+            f"(metres), got {depth.dtype}"
+        )
+    kp = np.asarray(keypoints2d, dtype=np.float64) if keypoints2d is not None else None
+    if kp is None or kp.shape != (18, 2):
+        raise ValueError(
+            f"{where}: keypoints2d must have shape (18, 2) (COCO-18 pixels), got "
+            f"{None if kp is None else kp.shape}"
+        )
+    conf = np.asarray(confidence, dtype=np.float64) if confidence is not None else None
+    if conf is None or conf.shape != (18,):
+        raise ValueError(
+            f"{where}: confidence must have shape (18,), got {None if conf is None else conf.shape}"
+        )
+    bad = ~np.isfinite(kp).all(axis=-1) | ~np.isfinite(conf)
+    conf = np.where(bad, 0.0, conf)  # non-finite keypoints are missing, never NaN poses
+    kp = np.where(bad[:, None], 0.0, kp)
+    return depth_m, kp.astype(np.float32), conf.astype(np.float32)
+
+
+class Tracker:
+    """Track one person through an RGB-D sequence.
+
+    Example::
+
+        tracker = posetrack.Tracker(intrinsics, posetrack.TrackerConfig(method="mht_h"))
+        result = tracker.run(depth_frames, keypoints2d, confidence)
+        result.keypoints3d  # (T, 18, 3) metres
+
+    or frame by frame with :meth:`update`. The body dimensions are estimated from the first
+    ``config.shape_frames`` frames of :meth:`run` unless ``shape`` is given.
+    """
+
+    def __init__(
+        self,
+        intrinsics: Intrinsics,
+        config: TrackerConfig | None = None,
+        *,
+        shape: body.BodyShape | None = None,
+        seed: int = 0,
+        depth_scale: float = 1000.0,
+    ):
+        if not isinstance(intrinsics, Intrinsics):
+            raise TypeError(
+                f"Tracker: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
+            )
+        vals = [float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)]
+        if not all(np.isfinite(vals)) or vals[0] <= 0 or vals[1] <= 0:
+            raise ValueError(f"Tracker: intrinsics are not physical: fx, fy, cx, cy = {vals}")
+        if not (np.isfinite(depth_scale) and depth_scale > 0):
+            raise ValueError(f"Tracker: depth_scale must be positive, got {depth_scale!r}")
+        self.config = config or TrackerConfig()
+        self._split = split_config(self.config)
+        self.intrinsics = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
+        self.depth_scale = float(depth_scale)
+        self.shape = (
+            None if shape is None else jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
+        )
+        self._key = jax.random.PRNGKey(seed)
+        self._state: TrackState | None = None
+        self._floor = jnp.asarray(NO_FLOOR, _DTYPE)
+        self._lost_run = 0
+        self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
+        self.compile_s = 0.0
+        self._init_timed = False
+        self._step_calls = 0
+        self._step_times: list[float] = []
+
+    # -- set-up ------------------------------------------------------------------------------
+
+    def _lift(self, depth_m, kp, conf) -> Landmarks:
+        shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
+        return _jit_lift(*self._split, shape, self.intrinsics, depth_m, kp, conf)
+
+    def estimate_shape(self, depths, keypoints2d, confidence) -> dict[str, float]:
+        """Estimate the body dimensions from several frames and use them from now on.
+
+        Returns the per-field ratios to the default adult (see ``estimate_shape``).
+        """
+        pts, flags = [], []
+        saved, self.shape = self.shape, None
+        for i, (d, k, c) in enumerate(zip(depths, keypoints2d, confidence)):
+            d, k, c = _check_frame(self.intrinsics, d, k, c, self.depth_scale, f"frame {i}")
+            lm = self._lift(d, k, c)
+            pts.append(np.asarray(lm.points3d))
+            flags.append(np.asarray(lm.has_depth))
+        self.shape = saved
+        if not pts:
+            raise ValueError("estimate_shape: no frames given")
+        shape, ratios = estimate_shape(np.stack(pts), np.stack(flags))
+        self.shape = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
+        self._state = None
+        return ratios
+
+    def reset(self) -> None:
+        """Forget the track (the next frame re-initialises from observations)."""
+        self._state = None
+        self._lost_run = 0
+
+    @property
+    def initialized(self) -> bool:
+        return self._state is not None
+
+    def _initialize(self, depth_m, kp, conf) -> bool:
+        if self.shape is None:
+            self.shape = body.BodyShape.default(_DTYPE)
+        lm = self._lift(depth_m, kp, conf)
+        if int(np.sum(np.asarray(lm.has_depth))) < self.config.min_landmarks:
+            return False
+        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
+        if p0 is None:
+            return False
+        t0 = time.perf_counter()
+        res, kps = _jit_init_fit(
+            self._init_settings, self.shape, self.intrinsics, jnp.asarray(p0, _DTYPE), lm
+        )
+        params = np.asarray(res.params)
+        if not self._init_timed:  # the first call compiles: count it as compile time
+            self.compile_s += time.perf_counter() - t0
+            self._init_timed = True
+        if not np.all(np.isfinite(params)):
+            return False
+        try:
+            normal, offset = fit_floor_plane(np.asarray(depth_m), self.intrinsics)
+            self._floor = jnp.asarray([*normal, offset], _DTYPE)
+        except ValueError:  # no floor in view: nothing to remove
+            self._floor = jnp.asarray(NO_FLOOR, _DTYPE)
+        N = self.config.n
+        self._key, sub = jax.random.split(self._key)
+        self._state = TrackState(
+            hypotheses=jnp.tile(res.params[None], (N, 1)),
+            previous=jnp.tile(kps[None], (N, 1, 1)),
+            best=res.params,
+            key=sub,
+        )
+        self._lost_run = 0
+        return True
+
+    # -- per frame ---------------------------------------------------------------------------
+
+    def update(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
+        """Process one frame. Returns (estimate or None, status code).
+
+        ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
+        ``keypoints2d``: (18, 2) pixels; ``confidence``: (18,), 0 = missing.
+        """
+        depth_m, kp, conf = _check_frame(
+            self.intrinsics, depth, keypoints2d, confidence, self.depth_scale, "update"
+        )
+        if self._state is None and not self._initialize(depth_m, kp, conf):
+            return None, NO_OBSERVATION
+        t0 = time.perf_counter()
+        state, est = _jit_step(
+            *self._split, self.shape, self.intrinsics, self._floor, self._state, depth_m, kp, conf
+        )
+        jax.block_until_ready(est)
+        dt = time.perf_counter() - t0
+        if self._step_calls == 0:  # the first call compiles
+            self.compile_s += dt
+        else:
+            self._step_times.append(dt)
+        self._step_calls += 1
+        if int(est.num_3d) < self.config.min_landmarks:
+            # Too little to fit: hold the previous pose, keep the hypotheses.
+            return est, NO_OBSERVATION
+        self._state = state
+        if float(est.delta) > self.config.lost_delta:
+            self._lost_run += 1
+            if self._lost_run >= self.config.lost_patience:
+                self.reset()
+            return est, LOST
+        self._lost_run = 0
+        return est, TRACKED
+
+    def run(
+        self,
+        depths: Sequence,
+        keypoints2d: Sequence | np.ndarray,
+        confidence: Sequence | np.ndarray,
+        *,
+        progress: bool = True,
+        label: str = "tracking",
+    ) -> TrackResult:
+        """Track a whole sequence. ``depths`` may be any sequence (e.g. a lazy file reader)."""
+        T = len(depths)
+        if len(keypoints2d) != T or len(confidence) != T:
+            raise ValueError(
+                f"run: {T} depth frames but {len(keypoints2d)} keypoint frames and "
+                f"{len(confidence)} confidence frames"
+            )
+        if T == 0:
+            raise ValueError("run: the sequence has no frames")
+        if self.shape is None:
+            n = min(self.config.shape_frames, T)
+            t0 = time.perf_counter()
+            self.estimate_shape([depths[i] for i in range(n)], keypoints2d[:n], confidence[:n])
+            self.compile_s += time.perf_counter() - t0
+        kp3 = np.full((T, 18, 3), np.nan)
+        params = np.full((T, 43), np.nan)
+        delta = np.full(T, np.nan)
+        status = np.full(T, NO_OBSERVATION, np.int8)
+        conf_out = np.zeros((T, 18), np.float32)
+        lm3 = np.zeros((T, 18, 3))
+        has_d = np.zeros((T, 18), bool)
+        det = np.zeros((T, 18), bool)
+        bar = Progress(range(T), label, enabled=progress)
+        for t in bar:
+            est, st = self.update(depths[t], keypoints2d[t], confidence[t])
+            status[t] = st
+            if est is None:
+                continue
+            lm = est.landmarks
+            lm3[t], has_d[t], det[t] = (
+                np.asarray(lm.points3d),
+                np.asarray(lm.has_depth),
+                np.asarray(lm.detected),
+            )
+            if st == NO_OBSERVATION:
+                prev = self._state.best if self._state is not None else None
+                if prev is not None:
+                    params[t] = np.asarray(prev)
+                    kp3[t] = np.asarray(body.keypoints(self.shape, prev))
+                continue
+            params[t] = np.asarray(est.params)
+            kp3[t] = np.asarray(est.keypoints3d)
+            delta[t] = float(est.delta)
+            conf_out[t] = keypoint_confidence(est)
+            bar.postfix = f"delta {float(est.delta):.2f}"
+        # Never NaN parameters: frames without an estimate take the nearest estimated pose.
+        have = np.flatnonzero(np.isfinite(params).all(axis=1))
+        if len(have):
+            nearest = have[np.abs(np.arange(T)[:, None] - have[None]).argmin(axis=1)]
+            params = params[nearest]
+        else:
+            params = np.tile(np.asarray(body.facing_camera_params(2.5)), (T, 1))
+        times = self._step_times
+        return TrackResult(
+            keypoints3d=kp3,
+            params=params,
+            delta=delta,
+            status=status,
+            confidence=conf_out,
+            landmarks3d=lm3,
+            has_depth=has_d,
+            detected=det,
+            shape=self.shape,
+            config=self.config,
+            compile_s=float(self.compile_s),
+            ms_per_frame=float(np.median(times) * 1000) if times else float("nan"),
+        )
+
+
+def track(
+    depths,
+    keypoints2d,
+    confidence,
+    intrinsics: Intrinsics,
+    config: TrackerConfig | None = None,
+    *,
+    shape: body.BodyShape | None = None,
+    seed: int = 0,
+    progress: bool = False,
+) -> TrackResult:
+    """Track a sequence in one call (see :class:`Tracker`)."""
+    return Tracker(intrinsics, config, shape=shape, seed=seed).run(
+        depths, keypoints2d, confidence, progress=progress
+    )
+
+
+__all__ = [
+    "Tracker",
+    "TrackResult",
+    "track",
+    "keypoint_confidence",
+    "LOST",
+    "TRACKED",
+    "NO_OBSERVATION",
+]
+
+
+def lift_sequence(
+    depths,
+    keypoints2d,
+    confidence,
+    intrinsics: Intrinsics,
+    *,
+    config: TrackerConfig | None = None,
+    depth_scale: float = 1000.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Plain lifting of every frame (no model, no surface offset): the naive baseline's input.
+
+    Returns:
+        (points3d (T, 18, 3) metres, has_depth (T, 18)); pass them to ``naive_lifting``.
+    """
+    config = dataclasses.replace(config or TrackerConfig(), surface_offset=False)
+    intr = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
+    shape = body.BodyShape.default(_DTYPE)
+    pts, flags = [], []
+    for i in range(len(depths)):
+        d, k, c = _check_frame(
+            intr, depths[i], keypoints2d[i], confidence[i], depth_scale, f"frame {i}"
+        )
+        lm = _jit_lift(*split_config(config), shape, intr, d, k, c)
+        pts.append(np.asarray(lm.points3d))
+        flags.append(np.asarray(lm.has_depth))
+    return np.stack(pts), np.stack(flags)

@@ -1,0 +1,111 @@
+"""The tracker end to end on generated sequences: accuracy against the naive floor, no
+recompilation per frame, track status, and bad input at the public boundary."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import posetrack as pt
+from posetrack import _tracker
+from posetrack._step import LOST, NO_OBSERVATION, TRACKED
+
+
+@pytest.fixture(scope="module")
+def seq():
+    # The demo's default sequence (noisy sensor and detector), shortened.
+    return pt.synth.generate(0, motion="walk", n_frames=30)
+
+
+@pytest.fixture(scope="module")
+def lvm_result(seq):
+    return pt.track(
+        seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, pt.TrackerConfig.paper("lvm")
+    )
+
+
+def test_lvm_beats_naive_lifting_on_the_default_sequence(seq, lvm_result):
+    acc = pt.accuracy(lvm_result.keypoints3d, seq.joints3d)
+    plain = _tracker.lift_sequence(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics)
+    naive = pt.accuracy(pt.naive_lifting(*plain), seq.joints3d)
+    assert acc.coverage == 1.0
+    assert acc.mean_mm < 0.8 * naive.mean_mm, (acc.mean_mm, naive.mean_mm)
+    assert acc.mean_mm < 80.0
+    assert (lvm_result.status == TRACKED).mean() > 0.9
+    assert np.isfinite(lvm_result.params).all()
+
+
+def test_estimated_body_is_the_subjects_size(seq, lvm_result):
+    """Shape estimation from the first frames finds the subject's bone lengths to ~10 %."""
+    shape = lvm_result.shape
+    truth = seq.subject
+    assert abs(float(shape.thigh) - truth["thigh"]) / truth["thigh"] < 0.12
+    assert abs(float(shape.upper_arm) - truth["upper_arm"]) / truth["upper_arm"] < 0.12
+
+
+def test_no_recompilation_over_frames(seq):
+    config = pt.TrackerConfig.paper("mht_h", num_hypotheses=3)
+    tracker = pt.Tracker(seq.intrinsics, config)
+    tracker.estimate_shape(seq.depth[:5], seq.keypoints2d[:5], seq.confidence[:5])
+    tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
+    before = _tracker._jit_step._cache_size()
+    for t in range(1, 12):
+        est, status = tracker.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
+        assert est is not None and status in (TRACKED, LOST)
+        assert est.deltas.shape == (3,)
+    assert _tracker._jit_step._cache_size() == before, "the tracker step recompiled during tracking"
+    # Tunables (exclusion ratios, sigmas, d_M, ...) are traced: a sweep reuses the compiled step.
+    other = dataclasses.replace(config, r=0.05, R=0.15, sigma_h=0.3, d_hmax=0.2, d_M=0.1)
+    tracker2 = pt.Tracker(seq.intrinsics, other, shape=tracker.shape)
+    for t in range(3):
+        tracker2.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
+    assert _tracker._jit_step._cache_size() == before, "changing a tunable recompiled the step"
+
+
+def test_frames_without_observation_hold_the_pose(seq):
+    tracker = pt.Tracker(seq.intrinsics, pt.TrackerConfig.paper("lvm"))
+    kp, conf, depth = seq.keypoints2d, seq.confidence.copy(), seq.depth.copy()
+    conf[3:6] = 0.0  # all keypoints missing for three frames
+    depth[7] = 0  # an all-invalid depth frame
+    res = tracker.run(depth[:10], kp[:10], conf[:10], progress=False)
+    assert list(res.status[3:6]) == [NO_OBSERVATION] * 3
+    assert res.status[7] == NO_OBSERVATION
+    assert np.isfinite(res.params).all() and np.isfinite(res.keypoints3d[1:10]).all()
+
+
+def test_first_frames_without_observation_are_nan_not_garbage(seq):
+    conf = seq.confidence[:6].copy()
+    conf[:2] = 0.0
+    res = pt.Tracker(
+        seq.intrinsics, pt.TrackerConfig.paper("lvm"), shape=pt.BodyShape.default()
+    ).run(seq.depth[:6], seq.keypoints2d[:6], conf, progress=False)
+    assert np.isnan(res.keypoints3d[:2]).all() and list(res.status[:2]) == [NO_OBSERVATION] * 2
+    assert np.isfinite(res.keypoints3d[2:]).all()
+    assert np.isfinite(res.params).all()  # parameters are never NaN
+
+
+def test_bad_input_names_the_argument(seq):
+    tracker = pt.Tracker(seq.intrinsics, pt.TrackerConfig.paper("lvm"))
+    d, k, c = seq.depth[0], seq.keypoints2d[0], seq.confidence[0]
+    with pytest.raises(ValueError, match="keypoints2d"):
+        tracker.update(d, k[:17], c)
+    with pytest.raises(ValueError, match="confidence"):
+        tracker.update(d, k, c[:, None])
+    with pytest.raises(ValueError, match="depth dtype"):
+        tracker.update(d.astype(np.int32), k, c)
+    with pytest.raises(ValueError, match="depth is empty"):
+        tracker.update(np.zeros((0, 0), np.uint16), k, c)
+    with pytest.raises(ValueError, match="does not match the intrinsics"):
+        tracker.update(d[:100], k, c)
+    with pytest.raises(ValueError, match="fx"):
+        pt.Intrinsics.create(fx=float("nan"), fy=500.0, cx=320.0, cy=240.0, width=640, height=480)
+    bad = dataclasses.replace(seq.intrinsics, fx=seq.intrinsics.fx * np.nan)
+    with pytest.raises(ValueError, match="not physical"):
+        pt.Tracker(bad)
+    with pytest.raises(ValueError, match="method"):
+        pt.TrackerConfig(method="mht_x")
+    # NaN keypoints are missing keypoints, not NaN poses.
+    k_nan = k.copy()
+    k_nan[4] = np.nan
+    est, status = tracker.update(d, k_nan, c)
+    assert np.isfinite(np.asarray(est.params)).all()
