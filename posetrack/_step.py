@@ -110,6 +110,9 @@ class TrackerConfig:
     lost_patience: int = 5
     """Consecutive lost frames before the tracker re-initialises from observations."""
     min_landmarks: int = 4
+    use_floor: bool = True
+    """Fit a floor plane at (re-)initialisation and drop depth near it from the observation. A
+    plane is used only if the body's root lies 0.3-1.6 m above it (else: no floor)."""
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
 
     def __post_init__(self):
@@ -260,6 +263,16 @@ def _part_radii(shape: body.BodyShape) -> Array:
     return jnp.stack([z, to, to, ua, fa, to, ua, fa, to, th, sn, to, th, sn, z, z, z, z])
 
 
+def scoring_size(config: TrackerConfig, height: int, width: int) -> tuple[int, int]:
+    """(h, w) of the scoring maps: ``score_width`` wide, and ``score_height`` high when it has the
+    sensor's aspect ratio (within 2 %); otherwise the height follows the sensor's aspect ratio
+    (e.g. 160x90 for a 16:9 sensor), so the maps never drop part of the image."""
+    w, h = config.score_width, config.score_height
+    if abs(h / w - height / width) > 0.02 * height / width:
+        h = max(8, round(w * height / width))
+    return h, w
+
+
 def score_depth(
     depth: Float[Array, "H W"], intrinsics: Intrinsics, config: TrackerConfig
 ) -> tuple[Float[Array, "h w"], Intrinsics]:
@@ -270,7 +283,7 @@ def score_depth(
     cropped from the bottom/right first, which leaves fx, fy, cx, cy unchanged.
     """
     H, W = depth.shape
-    h, w = config.score_height, config.score_width
+    h, w = scoring_size(config, H, W)
     if H < h or W < w:
         raise ValueError(f"depth {W}x{H} is smaller than the scoring size {w}x{h}")
     fy, fx = H // h, W // w

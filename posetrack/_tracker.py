@@ -223,7 +223,8 @@ class Tracker:
         self.shape = saved
         if not pts:
             raise ValueError("estimate_shape: no frames given")
-        shape, ratios = estimate_shape(np.stack(pts), np.stack(flags))
+        # With fewer than 3 frames a length has fewer than 3 measurements; accept what there is.
+        shape, ratios = estimate_shape(np.stack(pts), np.stack(flags), min_samples=min(3, len(pts)))
         self.shape = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
         self._state = None
         return ratios
@@ -256,11 +257,7 @@ class Tracker:
             self._init_timed = True
         if not np.all(np.isfinite(params)):
             return False
-        try:
-            normal, offset = fit_floor_plane(np.asarray(depth_m), self.intrinsics)
-            self._floor = jnp.asarray([*normal, offset], _DTYPE)
-        except ValueError:  # no floor in view: nothing to remove
-            self._floor = jnp.asarray(NO_FLOOR, _DTYPE)
+        self._floor = jnp.asarray(self._fit_floor(depth_m, params), _DTYPE)
         N = self.config.n
         self._key, sub = jax.random.split(self._key)
         self._state = TrackState(
@@ -271,6 +268,24 @@ class Tracker:
         )
         self._lost_run = 0
         return True
+
+    def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
+        """The floor plane, or ``NO_FLOOR`` when there is none we can trust.
+
+        RANSAC finds the dominant near-horizontal plane; outdoors, with depth only on people,
+        that "plane" can cut through the people themselves. A floor is accepted only if the
+        fitted root (pelvis) lies 0.3-1.6 m above it, as for a standing or sitting person.
+        """
+        if not self.config.use_floor:
+            return NO_FLOOR
+        try:
+            normal, offset = fit_floor_plane(np.asarray(depth_m), self.intrinsics)
+        except ValueError:  # no floor-like plane in view
+            return NO_FLOOR
+        root_height = float(np.dot(normal, params[:3]) + offset)
+        if not 0.3 <= root_height <= 1.6:
+            return NO_FLOOR
+        return (*[float(v) for v in normal], float(offset))
 
     # -- per frame ---------------------------------------------------------------------------
 
