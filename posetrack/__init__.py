@@ -24,6 +24,9 @@ from ._camera import project as project
 from ._depthobs import downsample_depth as downsample_depth
 from ._depthobs import fit_floor_plane as fit_floor_plane
 from ._depthobs import observation_maps as observation_maps
+from ._export import SavedResults as SavedResults
+from ._export import bvh_from_result as bvh_from_result
+from ._export import save_results as save_results
 from ._fit import FitResult as FitResult
 from ._fit import FitSettings as FitSettings
 from ._fit import fit_hypotheses as fit_hypotheses
@@ -61,5 +64,6 @@ __all__ = [
     "fit_floor_plane", "fit_hypotheses", "fit_pose", "initial_pose", "io", "keypoints",
     "lift_keypoints", "make_params", "naive_lifting", "observation_maps", "project",
     "render_and_score", "render_depth", "render_depth_batch", "success_curve", "synth", "track",
+    "SavedResults", "bvh_from_result", "save_results",
     "tracker_step",
 ]  # fmt: skip

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import time
+
+_DETECT_INSTALL = 'pip install "posetrack[detect]"'
 
 
 def _demo(args) -> int:
@@ -30,6 +34,172 @@ def _generate(args) -> int:
     )  # fmt: skip
     synth.save(seq, args.out)
     print(f"wrote {len(seq.depth)} frames to {args.out}")
+    return 0
+
+
+def _load_detector():
+    """``posetrack.detect.detect_keypoints``, or a clear error if the extra is missing.
+
+    Checked before the recording is loaded, so a missing extra fails in a second, not after
+    loading: ``posetrack.detect`` imports without MediaPipe, and ``available()`` tries it.
+    """
+    missing = (
+        "--detect needs the optional 2D keypoint detector (MediaPipe BlazePose with its "
+        f"bundled models), which cannot be loaded here{{}}; install it with: {_DETECT_INSTALL}"
+    )
+    try:
+        from . import detect
+    except ImportError as e:
+        raise ValueError(missing.format(f" ({e})")) from None
+    available = getattr(detect, "available", None)
+    if available is not None and not available():
+        raise ValueError(missing.format(""))
+    return detect.detect_keypoints
+
+
+def _detected(detect_keypoints, rgb, n: int, *, progress: bool):
+    """Run the built-in detector on the colour frames; checks what it returns."""
+    import numpy as np
+
+    try:
+        kp2d, conf = detect_keypoints(rgb, progress=progress)
+    except ImportError as e:  # the extra broke between the check and the call
+        raise ValueError(f"--detect: {e}") from None
+    kp2d, conf = np.asarray(kp2d, np.float32), np.asarray(conf, np.float32)
+    if kp2d.shape != (n, 18, 2) or conf.shape != (n, 18):
+        raise ValueError(
+            f"--detect: the detector returned keypoints {kp2d.shape} and confidence "
+            f"{conf.shape}; expected ({n}, 18, 2) and ({n}, 18)"
+        )
+    return kp2d, conf
+
+
+def _track(args) -> int:
+    import numpy as np
+
+    from . import io
+    from ._export import check_output_dir, save_results, status_counts
+    from ._step import TrackerConfig
+    from ._tracker import Tracker
+
+    t_start = time.perf_counter()
+    progress = not args.quiet
+    detect_keypoints = None
+    if args.detect:
+        if args.rgb is None:
+            raise ValueError("--detect needs --rgb DIR|VIDEO (the colour frames to detect in)")
+        if args.keypoints is not None:
+            raise ValueError("give either --keypoints DIR or --detect, not both")
+        if args.person_id is not None:
+            raise ValueError("--person-id selects a person in OpenPose files; not with --detect")
+        detect_keypoints = _load_detector()
+    elif args.keypoints is None:
+        raise ValueError(
+            "--keypoints DIR is required (OpenPose JSON), or --detect with --rgb to detect "
+            f"keypoints with the built-in detector ({_DETECT_INSTALL})"
+        )
+    if args.hypotheses is not None and args.hypotheses < 1:
+        raise ValueError(f"--hypotheses must be at least 1, got {args.hypotheses}")
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be positive, got {args.fps}")
+    out = check_output_dir(args.out)  # before the long part: a bad --out fails now
+
+    rec = io.load_recording(
+        depth_dir=args.depth, keypoints_dir=args.keypoints, intrinsics_path=args.intrinsics,
+        rgb=args.rgb, depth_scale=args.depth_scale, person_id=args.person_id,
+        allow_missing=args.allow_missing,
+        out_of_image="drop" if args.drop_outside else "error",
+    )  # fmt: skip
+    notes = list(rec.notes)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
+    n = len(rec)
+    t_loaded = time.perf_counter()
+    if detect_keypoints is not None:
+        kp2d, conf = _detected(detect_keypoints, rec.rgb, n, progress=progress)
+        nobody = rec.frame_ids[~(conf > 0).any(axis=1)]
+        if nobody.size:
+            notes.append(
+                f"detector: nobody found in {nobody.size} frame(s) "
+                f"({io.format_ranges(nobody.tolist())}): frames without observation"
+            )
+            print(f"note: {notes[-1]}", file=sys.stderr)
+    else:
+        kp2d, conf = rec.keypoints2d, rec.confidence
+    # Frames without observation (no depth file, nobody chosen) carry no keypoints at all.
+    conf = np.where(rec.observed[:, None], conf, np.float32(0))
+    t_detected = time.perf_counter()
+
+    overrides = {}
+    if args.hypotheses is not None:
+        if args.method == "lvm":
+            print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
+        else:
+            overrides["num_hypotheses"] = args.hypotheses
+    config = TrackerConfig.paper(args.method, **overrides)
+    w, h = rec.intrinsics.width, rec.intrinsics.height
+    print(
+        f"tracking {n} frames ({w}x{h}) with {config.method}, {config.n} hypothes"
+        f"{'is' if config.n == 1 else 'es'} (the first frames include JAX compilation)",
+        file=sys.stderr,
+    )
+    tracker = Tracker(rec.intrinsics, config, seed=args.seed)
+    result = tracker.run(rec.depth, kp2d, conf, progress=progress)
+    t_tracked = time.perf_counter()
+
+    fps = args.fps if args.fps is not None else rec.fps
+    info = {
+        "inputs": {
+            "depth": os.path.abspath(args.depth),
+            "keypoints": None if args.keypoints is None else os.path.abspath(args.keypoints),
+            "keypoints_source": "posetrack.detect" if args.detect else rec.keypoint_layout,
+            "rgb": None if args.rgb is None else os.path.abspath(args.rgb),
+            "intrinsics": os.path.abspath(args.intrinsics),
+            "depth_scale": args.depth_scale,
+            "person_id": args.person_id,
+            "allow_missing": args.allow_missing,
+            "drop_outside": args.drop_outside,
+            "seed": args.seed,
+        },
+        "notes": notes,
+        "timing": {
+            "load_s": t_loaded - t_start,
+            "detect_s": t_detected - t_loaded if args.detect else None,
+            "track_s": t_tracked - t_detected,
+        },
+    }
+    saved = save_results(
+        out, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids, fps=fps,
+        rgb=rec.rgb, depth=rec.depth, video=not args.no_video, detections=(kp2d, conf),
+        info=info, progress=progress,
+    )  # fmt: skip
+
+    counts = status_counts(result.status)
+    tracked = result.status == 0
+    mean_delta = f"{np.mean(result.delta[tracked]):.3f}" if tracked.any() else "n/a"
+    total = time.perf_counter() - t_start
+    print(
+        f"{n} frames: {counts['tracked']} tracked, {counts['lost']} lost, "
+        f"{counts['no_observation']} without observation; mean Delta {mean_delta} "
+        f"(tracked frames)"
+    )
+    steady = (
+        f", {result.ms_per_frame:.0f} ms/frame after that"
+        if np.isfinite(result.ms_per_frame)
+        else ""
+    )
+    print(f"time: {total:.1f} s (compile {result.compile_s:.1f} s{steady})")
+    files = ["poses.npz", "keypoints3d/", "motion.bvh"]
+    if saved.overlay is not None:
+        files.append(saved.overlay.name)
+    files.append("summary.json")
+    print(f"wrote {out}/: {', '.join(files)}")
+    if not tracked.any():
+        print(
+            "warning: no frame was tracked; check that the keypoints belong to the depth "
+            "images (same camera, registered) and that the person is in range",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -77,16 +247,94 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(func=_generate)
+
+    t = sub.add_parser(
+        "track",
+        help="track a person in a recording (depth PNGs + OpenPose JSON) and write poses, "
+        "BVH and an overlay video",
+        description="Track one person through an RGB-D recording. Inputs: a folder of 16-bit "
+        "depth PNGs, a folder of OpenPose JSON (COCO-18 or BODY_25) and the depth camera's "
+        "intrinsics JSON. Writes poses.npz, keypoints3d/*.json (EasyMocap), motion.bvh, "
+        "overlay.mp4 (or .gif) and summary.json into --out, atomically.",
+        epilog="Exit codes: 0 done, 2 bad input or arguments (one 'error:' line, nothing "
+        "written), 130 interrupted (nothing written). Set POSETRACK_TRACEBACK=1 to see "
+        "tracebacks instead of 'error:' lines.",
+    )
+    t.add_argument("--depth", required=True, metavar="DIR", help="folder of 16-bit depth PNGs")
+    t.add_argument(
+        "--keypoints", metavar="DIR",
+        help="folder of OpenPose <stem>_keypoints.json files (not needed with --detect)",
+    )  # fmt: skip
+    t.add_argument(
+        "--intrinsics", required=True, metavar="FILE",
+        help="depth-camera intrinsics JSON: Open3D, {fx, fy, cx, cy, width, height} or ROS "
+        "CameraInfo (K, width, height)",
+    )  # fmt: skip
+    t.add_argument(
+        "--rgb", metavar="DIR|VIDEO",
+        help="colour frames registered to depth (folder or video): overlay background, "
+        "and the input of --detect",
+    )  # fmt: skip
+    t.add_argument(
+        "--detect", action="store_true",
+        help=f"detect 2D keypoints in --rgb with the built-in detector ({_DETECT_INSTALL})",
+    )  # fmt: skip
+    t.add_argument(
+        "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
+        help="tracker variant, the paper's best setting of each (default: %(default)s)",
+    )  # fmt: skip
+    t.add_argument(
+        "--hypotheses", type=int, metavar="N",
+        help="number of hypotheses (default: the paper's, 5 for mht_h/mht_g, 20 for mht_r)",
+    )  # fmt: skip
+    t.add_argument(
+        "--depth-scale", type=float, default=1000.0, metavar="S",
+        help="depth units per metre (default: %(default)g = millimetres; 5000 for TUM RGB-D)",
+    )  # fmt: skip
+    t.add_argument(
+        "--person-id", type=int, metavar="ID",
+        help="OpenPose person_id to follow (default: the best-scoring person in each frame)",
+    )  # fmt: skip
+    t.add_argument(
+        "--allow-missing", action="store_true",
+        help="frames missing from one folder become frames without observation (default: error)",
+    )  # fmt: skip
+    t.add_argument(
+        "--drop-outside", action="store_true",
+        help="keypoints more than 16 px outside the image are marked missing (default: error)",
+    )  # fmt: skip
+    t.add_argument(
+        "--fps", type=float,
+        help="frame rate for the BVH and video (default: the video's, else 30)",
+    )  # fmt: skip
+    t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
+    t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
+    t.add_argument("--quiet", action="store_true", help="no progress bars")
+    t.add_argument(
+        "--out", required=True, metavar="DIR", help="output folder (replaced as a whole)"
+    )
+    t.set_defaults(func=_track)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit code (0 ok, 2 bad input, 130 interrupted)."""
     args = build_parser().parse_args(argv)
+    if os.environ.get("POSETRACK_TRACEBACK"):
+        return args.func(args)
     try:
         return args.func(args)
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        # The progress bar may have left the cursor mid-line.
+        print("\ninterrupted: nothing was written (outputs appear only when complete)",
+              file=sys.stderr)  # fmt: skip
         return 130
+    except (ValueError, FileExistsError) as e:  # InputError is a ValueError
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # disk full, permissions: not the input's fault, still no traceback
+        print(f"error: {e}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

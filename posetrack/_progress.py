@@ -48,7 +48,7 @@ class Progress:
             yield item
             n += 1
             now = time.perf_counter()
-            if now - last > 0.1 or n == self.total:
+            if now - last > 0.1 and n != self.total:
                 self._draw(n, now - start)
                 last = now
         self._draw(n, time.perf_counter() - start)

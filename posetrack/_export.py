@@ -1,0 +1,357 @@
+"""From a :class:`~posetrack.TrackResult` to files: the glue behind ``posetrack track``.
+
+:func:`save_results` writes one output folder, atomically (built in a hidden temporary folder
+next to it and renamed into place at the end, :func:`posetrack.io.atomic_dir`)::
+
+    out/poses.npz            keypoints3d, confidence, params, delta, status, frame_ids[, fps]
+    out/keypoints3d/*.json   EasyMocap layout, one file per frame
+    out/motion.bvh           the fitted skeleton and its motion (y-up, centimetres)
+    out/overlay.mp4          (or overlay.gif) the skeleton drawn on colour or depth
+    out/summary.json         frames, status counts, method, config, body shape, timing
+
+:func:`bvh_from_result` gives the BVH skeleton and motion as arrays, for other writers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from . import _body as body
+from ._camera import Intrinsics
+from ._overlay import write_overlay
+from ._step import STATUS_NAMES
+from ._tracker import TrackResult
+from .io import MARKER_NAME, atomic_dir, write_bvh, write_easymocap, write_poses_npz
+
+DEFAULT_FPS = 30.0
+"""Frame rate assumed for the BVH and the video when the recording does not say (a folder
+of images has no frame rate)."""
+
+BVH_JOINT_NAMES = ("pelvis",) + body.JOINT_NAMES[1:]
+"""BVH joint names: the body model's kinematic frames, the root named after its place."""
+
+BVH_END_SITES = {
+    "right_elbow": "right_wrist", "left_elbow": "left_wrist", "right_knee": "right_ankle",
+    "left_knee": "left_ankle", "neck": "head_top",
+}  # fmt: skip
+"""Leaf joint -> what its BVH End Site marks."""
+
+BVH_KEYPOINTS = {
+    "neck": 1, "right_shoulder": 2, "right_elbow": 3, "left_shoulder": 5, "left_elbow": 6,
+    "right_hip": 8, "right_knee": 9, "left_hip": 11, "left_knee": 12,
+}  # fmt: skip
+"""BVH joints that coincide with a COCO-18 keypoint (name -> keypoint index). The wrists (4, 7)
+and ankles (10, 13) are the End Sites of the elbows and knees."""
+
+# 180 deg about x: the camera frame (y down) -> a y-up world, as write_bvh(camera_to_y_up=True).
+_C = np.diag([1.0, -1.0, -1.0])
+
+
+class BvhMotion(NamedTuple):
+    """A skeleton animation, exactly the keyword arguments of :func:`posetrack.io.write_bvh`.
+
+    ``write_bvh(path, **motion._asdict(), fps=30, camera_to_y_up=True)`` writes it. Lengths in
+    metres; quaternions wxyz.
+    """
+
+    joint_names: tuple[str, ...]
+    """The 10 joints (:data:`BVH_JOINT_NAMES`)."""
+    parents: tuple[int, ...]
+    """Parent index per joint (-1 for the pelvis)."""
+    offsets: np.ndarray
+    """``float64 (10, 3)`` joint position in its parent's rest frame, metres (see
+    :func:`bvh_from_params` for which frame)."""
+    root_positions: np.ndarray
+    """``float64 (T, 3)`` pelvis centre, camera frame, metres."""
+    local_rotations_wxyz: np.ndarray
+    """``float64 (T, 10, 4)`` unit quaternions, wxyz, each joint relative to its parent (the
+    pelvis relative to the camera)."""
+    end_sites: dict[str, np.ndarray]
+    """Leaf joint -> End Site offset (metres): wrists, ankles, top of the head."""
+
+
+def _quat_normalize(q: np.ndarray) -> np.ndarray:
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    # A zero quaternion means identity to the body model (quat_normalize); never divide by 0.
+    identity = np.zeros_like(q)
+    identity[..., 0] = 1.0
+    return np.where(norm > 1e-12, q / np.where(norm > 1e-12, norm, 1.0), identity)
+
+
+def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
+    """The body model as a BVH skeleton, posed by ``params`` in every frame.
+
+    Joints: the pelvis (root, placed by the root translation and quaternion) and the 9 rotating
+    joints of the model (:data:`posetrack._body.JOINT_NAMES`), with End Sites at the wrists
+    (elbow children), ankles (knee children) and top of the head (neck child). Offsets come
+    from :func:`posetrack._body.joint_offsets`, so the BVH reproduces the model's forward
+    kinematics: its joints are the model's neck, shoulder, elbow, hip and knee keypoints and
+    its End Sites the wrist and ankle keypoints.
+
+    Rest frame. ``write_bvh(camera_to_y_up=True)`` maps the camera frame to a y-up world with
+    ``C = diag(1, -1, -1)`` (points ``C p``, rotations ``C R C``). Handing it the body-frame
+    offsets ``o`` and rotations ``R`` as they are would give a correct motion but an upside-down
+    rest pose facing -z. So every joint frame is re-expressed in the rest frame ``A = C``:
+    offsets ``C o``, local rotations ``C R C``, root rotation ``R_root C``. Along a chain the
+    inserted ``C C = I`` cancel, so the posed skeleton is unchanged, and after the writer's
+    conversion the file holds the model's own rest pose (upright, facing +z, the subject's
+    left = +x, arms hanging) and its joint quaternions unchanged.
+
+    Args:
+        shape: body dimensions (metres).
+        params: ``(T, 43)`` pose parameters (quaternions wxyz, any non-zero norm).
+
+    Returns:
+        A :class:`BvhMotion`.
+    """
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim != 2 or params.shape[1] != body.NUM_PARAMS:
+        raise ValueError(f"bvh_from_params: params must be (T, 43), got {params.shape}")
+    if not np.isfinite(params).all():
+        t, k = (int(i) for i in np.argwhere(~np.isfinite(params))[0])
+        raise ValueError(f"bvh_from_params: params[{t}, {k}] = {params[t, k]} is not finite")
+    q = _quat_normalize(params[:, 3:].reshape(len(params), body.NUM_JOINTS, 4))
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    local = np.stack([w, x, -y, -z], axis=-1)  # C R C for the joints: q_C q q_C^-1
+    # Root: R_root C, i.e. q_root * q_C with q_C = (0, 1, 0, 0).
+    local[:, 0] = np.stack([-x[:, 0], w[:, 0], z[:, 0], -y[:, 0]], axis=-1)
+    offsets = np.asarray(body.joint_offsets(shape), dtype=np.float64) @ _C
+    f = {k: float(v) for k, v in shape.to_dict().items()}
+    s = f["head_scale"]
+    end_body = {
+        "right_elbow": (0.0, -f["forearm"], 0.0),
+        "left_elbow": (0.0, -f["forearm"], 0.0),
+        "right_knee": (0.0, -f["shin"], 0.0),
+        "left_knee": (0.0, -f["shin"], 0.0),
+        # Top of the head capsule (posetrack._body.capsule_offsets: "head").
+        "neck": (0.0, (0.21 + f["head_radius"]) * s, 0.025 * s),
+    }
+    return BvhMotion(
+        joint_names=BVH_JOINT_NAMES,
+        parents=body.JOINT_PARENTS,
+        offsets=offsets,
+        root_positions=params[:, :3].copy(),
+        local_rotations_wxyz=local,
+        end_sites={k: _C @ np.asarray(v) for k, v in end_body.items()},
+    )
+
+
+def bvh_from_result(result: TrackResult) -> BvhMotion:
+    """The tracked skeleton and motion as BVH arrays (:func:`bvh_from_params` of the result).
+
+    Every frame has a pose: frames without an estimate repeat the nearest estimated one
+    (``TrackResult.params`` is never NaN); ``result.status`` says which frames those are.
+    """
+    return bvh_from_params(result.shape, result.params)
+
+
+@dataclasses.dataclass(frozen=True)
+class SavedResults:
+    """What :func:`save_results` wrote."""
+
+    folder: Path
+    """The output folder."""
+    poses: Path
+    """``poses.npz``."""
+    keypoints3d: Path
+    """The EasyMocap ``keypoints3d`` folder."""
+    bvh: Path
+    """``motion.bvh``."""
+    overlay: Path | None
+    """``overlay.mp4`` or ``overlay.gif``; None without video."""
+    summary: dict[str, Any]
+    """The contents of ``summary.json``."""
+
+
+def check_output_dir(path: str | os.PathLike[str]) -> Path:
+    """Fail early (before tracking) if ``path`` could not be replaced by :func:`save_results`.
+
+    A folder is replaced only if it does not exist, is empty, or was written by posetrack
+    (carries :data:`posetrack.io.MARKER_NAME`); the same rule :func:`posetrack.io.atomic_dir`
+    enforces at the end, checked here so a mistyped ``--out`` does not cost a tracking run.
+
+    Raises:
+        FileExistsError: ``path`` is a file, or a folder with other data in it.
+    """
+    path = Path(path)
+    if path.is_symlink() or (path.exists() and not path.is_dir()):
+        raise FileExistsError(f"{path}: exists and is not a folder; refusing to replace it")
+    if path.is_dir() and not (path / MARKER_NAME).is_file() and any(path.iterdir()):
+        raise FileExistsError(
+            f"{path}: folder exists and was not written by posetrack (no {MARKER_NAME} file "
+            "inside); refusing to replace it. Delete it or choose another output folder."
+        )
+    return path
+
+
+def _jsonable(value: Any) -> Any:
+    """Plain JSON values (NaN and inf become null: JSON has neither)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (np.integer, bool, np.bool_)):
+        return value.item() if isinstance(value, np.generic) else value
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return value
+
+
+def status_counts(status: np.ndarray) -> dict[str, int]:
+    """Frames per status name (``tracked``, ``lost``, ``no_observation``)."""
+    status = np.asarray(status)
+    return {name: int(np.sum(status == code)) for code, name in enumerate(STATUS_NAMES)}
+
+
+def save_results(
+    out_dir: str | os.PathLike[str],
+    result: TrackResult,
+    *,
+    intrinsics: Intrinsics,
+    frame_ids: Sequence[int] | np.ndarray | None = None,
+    fps: float | None = None,
+    rgb: Sequence[np.ndarray] | None = None,
+    depth: Sequence[np.ndarray] | None = None,
+    depth_scale: float = 1000.0,
+    video: bool = True,
+    detections: tuple[np.ndarray, np.ndarray] | None = None,
+    info: dict[str, Any] | None = None,
+    progress: bool = False,
+) -> SavedResults:
+    """Write every output of a tracked sequence into ``out_dir``, atomically.
+
+    The folder is built in a hidden temporary folder next to ``out_dir`` and renamed into place
+    when everything is written: after a crash or Ctrl-C, ``out_dir`` is either absent or the
+    previous complete output. A previous output folder is replaced as a whole; a folder not
+    written by posetrack is never replaced (:class:`FileExistsError`, raised before writing).
+
+    Files (T = frames):
+
+    * ``poses.npz`` (:func:`posetrack.io.write_poses_npz`): ``keypoints3d`` float32
+      (T, 18, 3) metres, camera frame (x right, y down, z forward), COCO-18, NaN where not
+      estimated (before the first estimate; frames without observation after it repeat the
+      last pose with confidence 0); ``confidence`` (T, 18); ``params`` (T, 43), never NaN;
+      ``delta`` (T,); ``status`` strings; ``frame_ids``; ``fps`` when known.
+    * ``keypoints3d/<frame:06d>.json`` (:func:`posetrack.io.write_easymocap`): EasyMocap
+      ``[{"id": 0, "keypoints3d": [[x, y, z, c], ...]}]``, BODY_25 order, camera frame, metres.
+    * ``motion.bvh``: :func:`bvh_from_result` written with ``camera_to_y_up=True`` in
+      centimetres (Blender: File > Import > Motion Capture, scale 0.01).
+    * ``overlay.mp4`` or ``overlay.gif`` (``video=True``): :func:`posetrack._overlay.write_overlay`.
+    * ``summary.json``: frames, status counts, mean Delta, method and configuration, body shape,
+      fps, timing, the files, plus ``info``.
+
+    Args:
+        out_dir: output folder.
+        result: the tracker's output.
+        intrinsics: the depth camera (projects the skeleton for the overlay).
+        frame_ids: ``(T,)`` increasing frame numbers (file names of the JSON); default 0..T-1.
+        fps: frames per second, or None if unknown (then ``poses.npz`` has no ``fps``, and the
+            BVH and video use :data:`DEFAULT_FPS`).
+        rgb: ``T`` colour images ``uint8 (H, W, 3)`` registered to depth, for the overlay.
+        depth: ``T`` depth images (float metres, or ``uint16`` at ``depth_scale`` units per
+            metre), drawn colourised when ``rgb`` is None.
+        depth_scale: units per metre of ``uint16`` depth.
+        video: write the overlay (needs ``rgb`` or ``depth``).
+        detections: optional ``((T, 18, 2), (T, 18))`` 2D keypoints and confidences given to
+            the tracker, drawn as dots on the overlay.
+        info: extra JSON-able entries for ``summary.json`` (inputs, notes, timing, ...).
+        progress: progress bar for the overlay on stderr.
+
+    Returns:
+        A :class:`SavedResults`.
+
+    Raises:
+        ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames.
+        FileExistsError: ``out_dir`` exists and was not written by posetrack.
+    """
+    t0 = time.perf_counter()
+    T = len(result.params)
+    ids = np.arange(T) if frame_ids is None else np.asarray(frame_ids)
+    if ids.shape != (T,):
+        raise ValueError(f"save_results: frame_ids must be ({T},), got {ids.shape}")
+    if T > 1 and not np.all(np.diff(ids) > 0):
+        raise ValueError(f"save_results: frame_ids must increase strictly, got {ids.tolist()}")
+    if fps is not None and not (math.isfinite(float(fps)) and float(fps) > 0):
+        raise ValueError(f"save_results: fps must be positive, got {fps!r}")
+    if video and rgb is None and depth is None:
+        raise ValueError("save_results: video=True needs rgb or depth frames to draw on")
+    for name, frames in (("rgb", rgb), ("depth", depth)):
+        if frames is not None and len(frames) != T:
+            raise ValueError(f"save_results: {name} has {len(frames)} frames, result has {T}")
+    out = check_output_dir(out_dir)
+    rate = float(fps) if fps is not None else DEFAULT_FPS
+    motion = bvh_from_result(result)  # validates params before anything is written
+
+    tracked = result.status == 0
+    summary: dict[str, Any] = {
+        "frames": T,
+        "frame_ids": {"first": int(ids[0]), "last": int(ids[-1])} if T else None,
+        "status_counts": status_counts(result.status),
+        "mean_delta_tracked": float(np.mean(result.delta[tracked])) if tracked.any() else None,
+        "method": result.config.method,
+        "hypotheses": result.config.n,
+        "config": dataclasses.asdict(result.config),
+        "shape": result.shape.to_dict(),
+        "fps": float(fps) if fps is not None else None,
+        "fps_used_for_bvh_and_video": rate,
+        "intrinsics": intrinsics.to_dict(),
+        "timing": {
+            "compile_s": result.compile_s,
+            "ms_per_frame_steady": result.ms_per_frame,
+        },
+    }
+    with atomic_dir(out) as tmp:
+        write_poses_npz(
+            tmp / "poses.npz", keypoints3d=result.keypoints3d, confidence=result.confidence,
+            params=result.params, delta=result.delta, status=result.status, fps=fps,
+            frame_ids=ids,
+        )  # fmt: skip
+        write_easymocap(tmp, result.keypoints3d, result.confidence, ids)
+        write_bvh(tmp / "motion.bvh", **motion._asdict(), fps=rate, camera_to_y_up=True)
+        overlay = None
+        if video:
+            overlay = write_overlay(
+                tmp / "overlay", keypoints3d=result.keypoints3d, status=result.status,
+                delta=result.delta, frame_ids=ids, intrinsics=intrinsics, fps=rate, rgb=rgb,
+                depth=depth, depth_scale=depth_scale, detections=detections, progress=progress,
+            )  # fmt: skip
+        files = {
+            "poses": "poses.npz",
+            "keypoints3d": "keypoints3d/ (EasyMocap, BODY_25 order)",
+            "bvh": "motion.bvh (y-up, centimetres)",
+            "overlay": overlay.name if overlay is not None else None,
+            "summary": "summary.json",
+        }
+        summary["files"] = files
+        summary["timing"]["write_s"] = time.perf_counter() - t0
+        if info:
+            for key, value in info.items():
+                if key == "timing":
+                    summary["timing"].update(value)
+                else:
+                    summary[key] = value
+        summary = _jsonable(summary)
+        (tmp / "summary.json").write_text(
+            json.dumps(summary, indent=1, allow_nan=False) + "\n", encoding="utf-8"
+        )
+    return SavedResults(
+        folder=out,
+        poses=out / "poses.npz",
+        keypoints3d=out / "keypoints3d",
+        bvh=out / "motion.bvh",
+        overlay=None if overlay is None else out / overlay.name,
+        summary=summary,
+    )

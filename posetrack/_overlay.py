@@ -1,0 +1,275 @@
+"""Overlay video: each frame's colour image (or colourised depth) with the estimated skeleton.
+
+An MP4 is written with OpenCV's ``VideoWriter`` and the ``mp4v`` (MPEG-4 Part 2) codec, which
+the opencv-python wheels carry with their built-in FFmpeg, so no system codec or extra Python
+package is needed. H.264 (``avc1``) is not in those wheels, and imageio needs an FFmpeg plugin
+(``imageio-ffmpeg`` or ``av``) that is often absent, so neither is relied on. Where no MP4
+writer opens, an animated GIF (imageio's bundled Pillow plugin) is written instead, scaled to
+at most :data:`GIF_MAX_WIDTH` pixels wide because GIF frames are kept in memory until the end.
+
+Colours: green skeleton = tracked, red = lost (Delta above ``lost_delta``), grey = no
+observation (the held pose, if any); small cyan dots = the 2D detections the tracker was given.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from ._camera import Intrinsics
+from ._progress import Progress
+from ._step import STATUS_NAMES
+from ._viz import CYAN, GREEN, RED, colorize_depth, draw_skeleton, put_label, write_gif
+
+GREY = (170, 170, 170)
+STATUS_COLORS = (GREEN, RED, GREY)
+"""Skeleton colour (RGB) per status code: tracked, lost, no observation."""
+
+GIF_MAX_WIDTH = 480
+"""GIF fallback frames are downscaled to this width (pixels) at most."""
+
+
+def project_points(intrinsics: Intrinsics, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pinhole projection in NumPy (no JAX dispatch per frame).
+
+    Args:
+        intrinsics: the camera.
+        points: ``(..., 3)`` camera-frame points, metres; NaN = absent.
+
+    Returns:
+        ``(uv (..., 2) pixels, valid (...,) bool)``: valid = finite and at least 5 cm in front
+        of the camera.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    z = p[..., 2]
+    valid = np.isfinite(p).all(axis=-1) & (z > 0.05)
+    zs = np.where(valid, z, 1.0)
+    u = float(intrinsics.fx) * np.where(valid, p[..., 0], 0.0) / zs + float(intrinsics.cx)
+    v = float(intrinsics.fy) * np.where(valid, p[..., 1], 0.0) / zs + float(intrinsics.cy)
+    return np.stack([u, v], axis=-1), valid
+
+
+def depth_range(depth: Sequence[np.ndarray], *, samples: int = 5) -> tuple[float, float]:
+    """A fixed (near, far) range in metres for colourising a whole depth sequence.
+
+    One range for all frames: per-frame percentiles would make the grey levels flicker.
+    Computed from up to ``samples`` frames spread over the sequence.
+    """
+    n = len(depth)
+    values = []
+    for t in np.unique(np.linspace(0, n - 1, min(samples, n)).round().astype(int)):
+        d = np.asarray(depth[int(t)], dtype=np.float32)
+        d = d[np.isfinite(d) & (d > 0)]
+        if d.size:
+            values.append(d[:: max(1, d.size // 20000)])
+    if not values:
+        return 0.5, 5.0
+    near, far = np.percentile(np.concatenate(values), [2, 98])
+    return float(near), float(max(far, near + 0.1))
+
+
+def overlay_frame(
+    image: np.ndarray,
+    keypoints3d: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    status: int,
+    delta: float,
+    frame_id: int,
+    detections: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Draw one frame of the overlay.
+
+    Args:
+        image: ``uint8 (H, W, 3)`` RGB (colour, or colourised depth).
+        keypoints3d: ``(18, 3)`` estimated COCO-18 keypoints, metres, camera frame; NaN rows
+            are not drawn.
+        intrinsics: the camera the keypoints are projected with.
+        status: 0 tracked, 1 lost, 2 no observation (sets the colour).
+        delta: Delta of the frame (Eq. (3)); NaN when not computed.
+        frame_id: frame number for the label.
+        detections: optional ``((18, 2) pixels, (18,) confidence)`` 2D keypoints given to the
+            tracker, drawn as small dots where the confidence is positive.
+
+    Returns:
+        ``uint8 (H, W, 3)`` RGB.
+    """
+    img = np.ascontiguousarray(image, dtype=np.uint8)
+    scale = max(1, round(img.shape[1] / 400))
+    if detections is not None:
+        uv2, conf2 = detections
+        for (u, v), c in zip(np.asarray(uv2, np.float64), np.asarray(conf2)):
+            if c > 0 and np.isfinite(u) and np.isfinite(v):
+                cv2.circle(img, (int(round(u)), int(round(v))), scale + 1, CYAN, -1, cv2.LINE_AA)
+    uv, valid = project_points(intrinsics, keypoints3d)
+    if valid.any():
+        img = draw_skeleton(
+            img, uv, color=STATUS_COLORS[int(status)], valid=valid, thickness=scale + 1
+        )
+    label = f"frame {int(frame_id)}  {STATUS_NAMES[int(status)]}"
+    if np.isfinite(delta):
+        label += f"  Delta {float(delta):.2f}"
+    return put_label(img, label, color=STATUS_COLORS[int(status)])
+
+
+class _Mp4Writer:
+    """Streams frames to an MP4 (mp4v); frames must all have the same size."""
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
+        w, h = size
+        # Round down to even sizes: MPEG-4 encoders work on 2x2 chroma blocks and some builds
+        # refuse odd sizes; one lost pixel row/column is invisible in an overlay.
+        self.size = (w - w % 2, h - h % 2)
+        self.path = path
+        self.writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, self.size)
+        self.frames = 0
+
+    @property
+    def ok(self) -> bool:
+        return self.writer.isOpened()
+
+    def write(self, rgb: np.ndarray) -> None:
+        w, h = self.size
+        self.writer.write(cv2.cvtColor(np.ascontiguousarray(rgb[:h, :w]), cv2.COLOR_RGB2BGR))
+        self.frames += 1
+
+    def close(self) -> None:
+        self.writer.release()
+
+
+def write_video(
+    stem: str | os.PathLike[str],
+    frames: Iterable[np.ndarray],
+    *,
+    fps: float,
+    size: tuple[int, int],
+    formats: Sequence[str] = ("mp4", "gif"),
+) -> Path:
+    """Write RGB frames as ``<stem>.mp4``, or ``<stem>.gif`` where no MP4 writer opens.
+
+    The file is written in place (not atomically): call this inside a folder that is itself
+    written atomically (:func:`posetrack.io.atomic_dir`), as :func:`save_results` does.
+
+    Args:
+        stem: output path without the suffix.
+        frames: ``uint8 (H, W, 3)`` RGB images, all of ``size``; consumed once, streamed for
+            MP4.
+        fps: frames per second.
+        size: ``(width, height)`` of the frames, pixels.
+        formats: formats to try, in order (``"mp4"``, ``"gif"``).
+
+    Returns:
+        The file written.
+
+    Raises:
+        OSError: no format could be written.
+    """
+    stem = Path(stem)
+    w, h = size
+    if "mp4" in formats:
+        path = stem.with_suffix(".mp4")
+        writer = _Mp4Writer(path, fps, size)
+        if writer.ok:
+            try:
+                for frame in frames:
+                    writer.write(frame)
+            finally:
+                writer.close()
+            if writer.frames and path.stat().st_size == 0:
+                raise OSError(f"{path}: OpenCV opened an MP4 writer but wrote nothing")
+            return path
+        writer.close()
+        path.unlink(missing_ok=True)
+    if "gif" in formats:
+        factor = min(1.0, GIF_MAX_WIDTH / w)
+        small = (max(1, round(w * factor)), max(1, round(h * factor)))
+        images = [
+            frame if factor == 1.0 else cv2.resize(frame, small, interpolation=cv2.INTER_AREA)
+            for frame in frames
+        ]
+        path = stem.with_suffix(".gif")
+        write_gif(path, images, fps=fps)
+        return path
+    raise OSError(f"{stem}: no video writer available for formats {tuple(formats)}")
+
+
+def write_overlay(
+    stem: str | os.PathLike[str],
+    *,
+    keypoints3d: np.ndarray,
+    status: np.ndarray,
+    delta: np.ndarray,
+    frame_ids: np.ndarray,
+    intrinsics: Intrinsics,
+    fps: float,
+    rgb: Sequence[np.ndarray] | None = None,
+    depth: Sequence[np.ndarray] | None = None,
+    depth_scale: float = 1000.0,
+    detections: tuple[np.ndarray, np.ndarray] | None = None,
+    progress: bool = False,
+    formats: Sequence[str] = ("mp4", "gif"),
+) -> Path:
+    """Render the overlay of a tracked sequence to ``<stem>.mp4`` (or ``.gif``).
+
+    Args:
+        stem: output path without the suffix.
+        keypoints3d: ``(T, 18, 3)`` metres, camera frame, NaN = not estimated.
+        status: ``(T,)`` status codes (0 tracked, 1 lost, 2 no observation).
+        delta: ``(T,)`` Delta per frame (NaN = not computed).
+        frame_ids: ``(T,)`` frame numbers for the labels.
+        intrinsics: camera of the images (colour registered to depth).
+        fps: frames per second of the video.
+        rgb: ``T`` colour images ``uint8 (H, W, 3)``; preferred background.
+        depth: ``T`` depth images, float metres or ``uint16`` in units of ``1/depth_scale`` m;
+            used (colourised, near = bright) when ``rgb`` is None.
+        depth_scale: units per metre of ``uint16`` depth.
+        detections: optional ``((T, 18, 2) pixels, (T, 18) confidence)`` 2D keypoints.
+        progress: show a progress bar on stderr.
+        formats: see :func:`write_video`.
+
+    Returns:
+        The video file written.
+    """
+    if rgb is None and depth is None:
+        raise ValueError("write_overlay: give rgb or depth frames to draw on")
+    T = len(keypoints3d)
+    w, h = intrinsics.width, intrinsics.height
+
+    def to_metres(d):
+        d = np.asarray(d)
+        return d.astype(np.float32) / np.float32(depth_scale) if d.dtype == np.uint16 else d
+
+    near = far = None
+    if rgb is None:
+        near, far = depth_range(_Lazy(depth, to_metres))
+
+    def frames():
+        for t in Progress(range(T), "overlay", enabled=progress):
+            if rgb is not None:
+                image = np.asarray(rgb[t], dtype=np.uint8)
+            else:
+                image = colorize_depth(to_metres(depth[t]), near=near, far=far, gray=True)
+            yield overlay_frame(
+                image, keypoints3d[t], intrinsics, status=int(status[t]),
+                delta=float(delta[t]), frame_id=int(frame_ids[t]),
+                detections=None if detections is None else (detections[0][t], detections[1][t]),
+            )  # fmt: skip
+
+    return write_video(stem, frames(), fps=fps, size=(w, h), formats=formats)
+
+
+class _Lazy(Sequence[np.ndarray]):
+    """A sequence view that applies ``fn`` on indexing (keeps depth on disk)."""
+
+    def __init__(self, items: Sequence, fn):
+        self.items, self.fn = items, fn
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, t):  # type: ignore[override]
+        return self.fn(self.items[t])

@@ -1,0 +1,452 @@
+"""``posetrack track`` end to end on folders written by ``posetrack.synth.save``.
+
+The CLI runs in-process (``posetrack._cli.main``) so every run shares one JAX compilation:
+all runs here use the same image size (320x240) and tracker configuration.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io as stdio
+import json
+import shutil
+import sys
+import types
+
+import cv2
+import jax
+import numpy as np
+import pytest
+
+import posetrack
+from posetrack import _body as body
+from posetrack import io
+from posetrack._cli import main
+from posetrack._export import BVH_KEYPOINTS
+
+N_FRAMES = 16
+METHOD, HYPOTHESES = "mht_h", 2
+CONFIG = posetrack.TrackerConfig.paper(METHOD, num_hypotheses=HYPOTHESES)
+VANISH_START, VANISH_MIDDLE = (0, 1), (7, 8, 9)  # frames whose keypoints are removed
+WRISTS_ANKLES = {"right_elbow": 4, "left_elbow": 7, "right_knee": 10, "left_knee": 13}
+
+
+def run_cli(*args: str) -> tuple[int, str, str]:
+    """``posetrack <args>`` in-process: (exit code, stdout, stderr)."""
+    out, err = stdio.StringIO(), stdio.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+def track_args(rec, out, *extra) -> list[str]:
+    return [
+        "track", "--depth", rec / "depth", "--keypoints", rec / "keypoints",
+        "--intrinsics", rec / "intrinsics.json", "--method", METHOD,
+        "--hypotheses", str(HYPOTHESES), "--quiet", "--out", out, *extra,
+    ]  # fmt: skip
+
+
+def without_keypoints(args: list) -> list:
+    i = args.index("--keypoints")
+    return args[:i] + args[i + 2 :]
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return posetrack.synth.generate(0, motion="walk", n_frames=N_FRAMES, width=320, height=240)
+
+
+@pytest.fixture(scope="module")
+def rec(seq, tmp_path_factory):
+    return posetrack.synth.save(seq, tmp_path_factory.mktemp("rec") / "rec")
+
+
+@pytest.fixture(scope="module")
+def lib_result(seq):
+    return posetrack.track(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, CONFIG)
+
+
+@pytest.fixture(scope="module")
+def cli(rec, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "out"
+    code, stdout, stderr = run_cli(*track_args(rec, out, "--rgb", rec / "rgb"))
+    assert code == 0, stderr
+    return types.SimpleNamespace(out=out, stdout=stdout, stderr=stderr)
+
+
+@pytest.fixture(scope="module")
+def poses(cli):
+    return io.read_poses_npz(cli.out / "poses.npz")
+
+
+# -- accuracy ---------------------------------------------------------------------------------
+
+
+def test_cli_reproduces_library_accuracy(cli, poses, lib_result, rec, seq):
+    truth = np.load(rec / "ground_truth.npz")["joints3d"]
+    np.testing.assert_allclose(truth, seq.joints3d)
+    # Depth PNGs are exact in mm and the JSON keeps every float32 bit, so the only difference
+    # is metres = mm * (1/1000) in the reader vs mm / 1000 in the tracker (1 ulp).
+    np.testing.assert_allclose(poses["keypoints3d"], lib_result.keypoints3d, atol=1e-3)
+    np.testing.assert_array_equal(poses["status"], lib_result.status_names)
+    acc_cli = posetrack.accuracy(poses["keypoints3d"], truth)
+    acc_lib = posetrack.accuracy(lib_result.keypoints3d, truth)
+    assert abs(acc_cli.mean_mm - acc_lib.mean_mm) < 0.5
+    assert acc_cli.coverage == 1.0
+    assert acc_cli.mean_mm < 50.0, acc_cli
+
+
+# -- outputs ----------------------------------------------------------------------------------
+
+
+def test_poses_npz_fields(poses):
+    T = N_FRAMES
+    expected = {
+        "keypoints3d": (np.float32, (T, 18, 3)),
+        "confidence": (np.float32, (T, 18)),
+        "params": (np.float64, (T, 43)),
+        "delta": (np.float32, (T,)),
+        "frame_ids": (np.int64, (T,)),
+    }
+    for key, (dtype, shape) in expected.items():
+        assert poses[key].dtype == dtype and poses[key].shape == shape, key
+    assert np.isfinite(poses["params"]).all()
+    assert set(poses["status"]) <= set(io.STATUSES)
+    np.testing.assert_array_equal(poses["frame_ids"], np.arange(T))
+    assert "fps" not in poses  # a folder of images has no frame rate and none was given
+    assert ((poses["confidence"] >= 0) & (poses["confidence"] <= 1)).all()
+
+
+def test_easymocap_layout(cli, poses):
+    files = sorted(p.name for p in (cli.out / "keypoints3d").glob("*.json"))
+    assert files == [f"{t:06d}.json" for t in range(N_FRAMES)]
+    people = json.loads((cli.out / "keypoints3d" / "000005.json").read_text())
+    assert len(people) == 1 and people[0]["id"] == 0
+    rows = np.asarray(people[0]["keypoints3d"])
+    assert rows.shape == (25, 4)  # BODY_25: EasyMocap's body25 skeleton
+    coco = rows[list(io.BODY25_TO_COCO18)]
+    np.testing.assert_allclose(coco[:, :3], poses["keypoints3d"][5], atol=2e-6)
+    np.testing.assert_allclose(coco[:, 3], poses["confidence"][5], atol=2e-6)
+
+
+def bvh_positions(path) -> tuple[list[str], np.ndarray]:
+    """Joint and End Site positions of a BVH file, camera frame, metres.
+
+    End Sites become extra joints without channels (named ``<parent>_end``), so the library's
+    forward kinematics places them; ``camera_to_y_up`` is undone with C = diag(1, -1, -1).
+    """
+    bvh = io.read_bvh(path)
+    names, parents = list(bvh.names), list(bvh.parents)
+    offsets, channels = list(bvh.offsets), list(bvh.channels)
+    for j, offset in sorted(bvh.end_sites.items()):
+        names.append(f"{bvh.names[j]}_end")
+        parents.append(j)
+        offsets.append(offset)
+        channels.append(())
+    pos = io.bvh_forward_kinematics(np.asarray(parents), np.asarray(offsets), channels, bvh.motion)
+    return names, pos / 100.0 * np.array([1.0, -1.0, -1.0])  # centimetres, y-up -> camera
+
+
+def test_bvh_round_trip_matches_model_keypoints(cli, poses):
+    summary = json.loads((cli.out / "summary.json").read_text())
+    shape = posetrack.BodyShape.create(**summary["shape"])
+    fk = np.asarray(jax.vmap(body.keypoints, in_axes=(None, 0))(shape, poses["params"]))
+    names, pos = bvh_positions(cli.out / "motion.bvh")
+    pairs = [(n, k) for n, k in BVH_KEYPOINTS.items()]
+    pairs += [(f"{n}_end", k) for n, k in WRISTS_ANKLES.items()]
+    assert len(pairs) == 13  # neck, shoulders, elbows, wrists, hips, knees, ankles
+    for name, k in pairs:
+        err = np.linalg.norm(pos[:, names.index(name)] - fk[:, k], axis=-1).max()
+        assert err < 1e-3, (name, err)
+    # ... and the tracked frames' keypoints in poses.npz are those of the same model.
+    np.testing.assert_allclose(poses["keypoints3d"][:, body.BODY_JOINTS], fk[:, body.BODY_JOINTS],
+                               atol=1e-4)  # fmt: skip
+
+
+def test_overlay_has_every_frame(cli):
+    video = cli.out / "overlay.mp4"  # the opencv wheel writes mp4v here
+    capture = cv2.VideoCapture(str(video))
+    frames = []
+    while True:
+        ok, frame = capture.read()
+        if not ok:
+            break
+        frames.append(frame)
+    capture.release()
+    assert len(frames) == N_FRAMES
+    assert frames[0].shape == (240, 320, 3)
+
+
+def test_summary_and_printout(cli, poses):
+    summary = json.loads((cli.out / "summary.json").read_text())
+    counts = {s: int(np.sum(poses["status"] == s)) for s in io.STATUSES}
+    assert summary["frames"] == N_FRAMES and summary["status_counts"] == counts
+    assert summary["method"] == METHOD and summary["hypotheses"] == HYPOTHESES
+    assert summary["config"]["num_hypotheses"] == HYPOTHESES
+    assert summary["shape"]["thigh"] > 0.2
+    assert summary["timing"]["track_s"] > 0 and summary["files"]["overlay"] == "overlay.mp4"
+    assert (
+        f"{N_FRAMES} frames: {counts['tracked']} tracked, {counts['lost']} lost, "
+        f"{counts['no_observation']} without observation" in cli.stdout
+    )
+    assert f"wrote {cli.out}/" in cli.stdout
+    assert "note: intrinsics: plain layout, 320x240" in cli.stderr
+    assert "note: keypoints: COCO-18" in cli.stderr
+
+
+# -- tracking over time -----------------------------------------------------------------------
+
+
+def test_keypoints_vanish_then_return(seq, tmp_path):
+    kp, conf = seq.keypoints2d.copy(), seq.confidence.copy()
+    gone = list(VANISH_START + VANISH_MIDDLE)
+    kp[gone], conf[gone] = 0.0, 0.0  # the detector found nobody: files with no people
+    rec = posetrack.synth.save(
+        dataclasses.replace(seq, keypoints2d=kp, confidence=conf), tmp_path / "rec"
+    )
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video"))
+    assert code == 0, stderr
+    assert "note: keypoints: nobody detected in 5 frame(s) (0-1, 7-9)" in stderr
+    poses = io.read_poses_npz(tmp_path / "out" / "poses.npz")
+    status = poses["status"]
+    assert (status[gone] == "no_observation").all()
+    assert (status[10:] == "tracked").all()  # tracking resumes when the person returns
+    assert np.isfinite(poses["params"]).all()  # never a NaN pose, not even before frame 2
+    # Before the first estimate nothing is known: NaN keypoints, zero confidence; in the gap
+    # the last pose is held, with zero confidence.
+    assert np.isnan(poses["keypoints3d"][list(VANISH_START)]).all()
+    assert np.isfinite(poses["keypoints3d"][list(VANISH_MIDDLE)]).all()
+    assert (poses["confidence"][gone] == 0).all()
+    acc = posetrack.accuracy(poses["keypoints3d"][10:], seq.joints3d[10:])
+    assert acc.mean_mm < 80.0, acc
+    empty = json.loads((tmp_path / "out" / "keypoints3d" / "000000.json").read_text())
+    assert empty == []  # EasyMocap: nobody estimated in that frame
+
+
+def test_detector_on_the_wrong_spot_is_lost_then_recovered(seq, tmp_path):
+    """The 2D detections jump 90 px sideways for 7 frames (a detector latched onto something
+    else): Delta rises above lost_delta, the frames are flagged lost, the tracker re-initialises
+    after lost_patience frames, and tracking recovers when the right keypoints return."""
+    wrong = slice(4, 11)
+    kp, conf = seq.keypoints2d.copy(), seq.confidence.copy()
+    kp[wrong, :, 0] += 90.0
+    inside = (kp[..., 0] >= 0) & (kp[..., 0] <= 319)
+    kp, conf = np.where(inside[..., None], kp, 0.0), np.where(inside, conf, 0.0)
+    rec = posetrack.synth.save(
+        dataclasses.replace(seq, keypoints2d=kp, confidence=conf), tmp_path / "rec"
+    )
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video"))
+    assert code == 0, stderr
+    poses = io.read_poses_npz(tmp_path / "out" / "poses.npz")
+    status = poses["status"]
+    assert (status[:4] == "tracked").all()
+    assert (status[wrong] == "lost").all(), status
+    assert (poses["delta"][wrong] > CONFIG.lost_delta).all()
+    assert (status[13:] == "tracked").all(), status
+    acc = posetrack.accuracy(poses["keypoints3d"][13:], seq.joints3d[13:])
+    assert acc.mean_mm < 150.0, acc
+    assert np.isfinite(poses["params"]).all()
+
+
+def test_allow_missing_flags_frames(rec, tmp_path):
+    copy = tmp_path / "rec"
+    shutil.copytree(rec, copy)
+    (copy / "depth" / "000005.png").unlink()
+    (copy / "keypoints" / "000012_keypoints.json").unlink()
+    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--allow-missing", "--no-video"))
+    assert code == 0, stderr
+    status = io.read_poses_npz(tmp_path / "out" / "poses.npz")["status"]
+    assert status[5] == "no_observation" and status[12] == "no_observation"
+    assert (np.delete(status, [5, 12]) == "tracked").all()
+
+
+def test_depth_overlay_without_rgb(rec, tmp_path):
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out"))
+    assert code == 0, stderr
+    capture = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
+
+
+# -- --detect ---------------------------------------------------------------------------------
+
+
+def fake_detect_module(monkeypatch, **attrs):
+    """Install ``posetrack.detect`` as a stand-in module (None: not importable at all)."""
+    module = None
+    if attrs:
+        module = types.ModuleType("posetrack.detect")
+        module.__dict__.update(attrs)
+    monkeypatch.setitem(sys.modules, "posetrack.detect", module)
+    if module is None:  # `from . import detect` would find an already imported attribute
+        monkeypatch.delattr(posetrack, "detect", raising=False)
+    else:
+        monkeypatch.setattr(posetrack, "detect", module, raising=False)
+
+
+@pytest.mark.parametrize("installed", ["nothing", "no mediapipe"])
+def test_detect_without_extra_says_how_to_install(installed, rec, tmp_path, monkeypatch):
+    if installed == "nothing":
+        fake_detect_module(monkeypatch)
+    else:  # posetrack.detect imports, MediaPipe does not
+        fake_detect_module(monkeypatch, available=lambda: False, detect_keypoints=None)
+    args = without_keypoints(track_args(rec, tmp_path / "out", "--rgb", rec / "rgb", "--detect"))
+    code, _, stderr = run_cli(*args)
+    assert code == 2
+    assert 'pip install "posetrack[detect]"' in stderr and stderr.startswith("error: ")
+    assert "note:" not in stderr  # failed before loading the recording
+    assert not (tmp_path / "out").exists()
+
+
+def test_detect_needs_rgb(rec, tmp_path):
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out"), "--detect")
+    assert code == 2 and "--detect needs --rgb" in stderr
+
+
+def test_detect_feeds_the_detector_output_to_the_tracker(seq, rec, cli, poses, tmp_path,
+                                                         monkeypatch):  # fmt: skip
+    calls = []
+
+    def detect_keypoints(rgb_frames, *, progress=True):
+        calls.append((len(rgb_frames), progress))
+        np.testing.assert_array_equal(rgb_frames[3], seq.rgb[3])
+        return seq.keypoints2d.copy(), seq.confidence.copy()
+
+    fake_detect_module(monkeypatch, detect_keypoints=detect_keypoints)
+    args = track_args(rec, tmp_path / "out", "--rgb", rec / "rgb", "--detect", "--no-video")
+    code, _, stderr = run_cli(*without_keypoints(args))
+    assert code == 0, stderr
+    assert calls == [(N_FRAMES, False)]  # --quiet: no progress bar
+    detected = io.read_poses_npz(tmp_path / "out" / "poses.npz")
+    # Same 2D keypoints as the OpenPose files hold: the same track.
+    np.testing.assert_allclose(detected["keypoints3d"], poses["keypoints3d"], atol=1e-5)
+
+
+# -- bad input --------------------------------------------------------------------------------
+
+
+def _truncate(rec):
+    p = rec / "depth" / "000003.png"
+    p.write_bytes(p.read_bytes()[:-2000])
+    return "000003.png", "truncated"
+
+
+def _eight_bit(rec):
+    cv2.imwrite(str(rec / "depth" / "000004.png"), np.full((240, 320), 90, np.uint8))
+    return "000004.png", "IHDR.bit_depth: is an 8-bit"
+
+
+def _not_openpose(rec):
+    (rec / "keypoints" / "000002_keypoints.json").write_text(json.dumps({"bodies": []}))
+    return "000002_keypoints.json", "no 'people' key"
+
+
+def _empty_json(rec):
+    (rec / "keypoints" / "000002_keypoints.json").write_text("")
+    return "000002_keypoints.json", "is empty (0 bytes)"
+
+
+def _size_mismatch(rec):
+    p = rec / "intrinsics.json"
+    p.write_text(json.dumps({**json.loads(p.read_text()), "width": 640, "height": 480}))
+    return "000000.png", "depth image is 320x240 but"
+
+
+def _missing(rec):
+    (rec / "depth" / "000005.png").unlink()
+    (rec / "keypoints" / "000012_keypoints.json").unlink()
+    return "lacks 1 frame(s): 5", "lacks 1 frame(s): 12"
+
+
+def _no_frames(rec):
+    shutil.rmtree(rec / "depth")
+    (rec / "depth").mkdir()
+    return "depth: frames", "no depth frames"
+
+
+def _outside(rec):
+    p = rec / "keypoints" / "000006_keypoints.json"
+    data = json.loads(p.read_text())
+    data["people"][0]["pose_keypoints_2d"][3 * 4] = 5000.0  # RWrist u
+    p.write_text(json.dumps(data))
+    return "000006_keypoints.json", "u=5000"
+
+
+def _nan(rec):
+    p = rec / "keypoints" / "000007_keypoints.json"
+    data = json.loads(p.read_text())
+    data["people"][0]["pose_keypoints_2d"][3 * 4 + 1] = float("nan")
+    p.write_text(json.dumps(data))  # Python writes the non-standard literal NaN
+    return "pose_keypoints_2d[13]", "is nan"
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [_truncate, _eight_bit, _not_openpose, _empty_json, _size_mismatch, _missing, _no_frames,
+     _outside, _nan],
+    ids=lambda f: f.__name__.strip("_"),
+)  # fmt: skip
+def test_bad_input_is_one_error_line_and_no_output(damage, rec, tmp_path):
+    copy = tmp_path / "rec"
+    shutil.copytree(rec, copy)
+    expected = damage(copy)
+    code, stdout, stderr = run_cli(*track_args(copy, tmp_path / "out"))
+    assert code == 2
+    assert stdout == ""
+    lines = stderr.strip().splitlines()
+    assert len([ln for ln in lines if ln.startswith("error: ")]) == 1, stderr
+    assert "Traceback" not in stderr
+    for text in expected:
+        assert text in lines[-1], (text, lines[-1])
+    assert not (tmp_path / "out").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["rec"]  # no hidden temporary folder either
+
+
+def test_drop_outside_turns_the_error_into_a_missing_keypoint(rec, tmp_path):
+    copy = tmp_path / "rec"
+    shutil.copytree(rec, copy)
+    _outside(copy)
+    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--drop-outside", "--no-video"))
+    assert code == 0, stderr
+    assert "outside the image marked missing in 1 frame(s) (6)" in stderr
+    assert io.read_poses_npz(tmp_path / "out" / "poses.npz")["status"][6] == "tracked"
+
+
+def test_out_folder_with_foreign_data_is_refused_before_tracking(rec, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "thesis.tex").write_text("precious")
+    code, _, stderr = run_cli(*track_args(rec, out))
+    assert code == 2 and "not written by posetrack" in stderr
+    assert "tracking" not in stderr  # failed before loading and tracking
+    assert [p.name for p in out.iterdir()] == ["thesis.tex"]
+
+
+# -- atomicity --------------------------------------------------------------------------------
+
+
+def test_ctrl_c_while_tracking_writes_nothing(rec, tmp_path, monkeypatch):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("posetrack._tracker.Tracker.run", interrupted)
+    code, stdout, stderr = run_cli(*track_args(rec, tmp_path / "out"))
+    assert code == 130 and "nothing was written" in stderr and stdout == ""
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_while_writing_leaves_the_previous_output(cli, rec, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    shutil.copytree(cli.out, out)
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("posetrack._export.write_overlay", interrupted)
+    code, _, stderr = run_cli(*track_args(rec, out))
+    assert code == 130 and "interrupted" in stderr
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]  # temporary folder removed

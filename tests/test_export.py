@@ -1,0 +1,268 @@
+"""``posetrack._export`` (tracker result -> files) and ``posetrack._overlay`` from Python."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import imageio.v3 as iio
+import jax
+import numpy as np
+import pytest
+
+import posetrack
+from posetrack import _body as body
+from posetrack import io
+from posetrack._export import (
+    BVH_KEYPOINTS,
+    DEFAULT_FPS,
+    bvh_from_params,
+    bvh_from_result,
+    save_results,
+)
+from posetrack._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, write_video
+from posetrack._viz import GREEN, RED
+
+N_FRAMES = 16
+# Same sequence size and configuration as test_cli_track.py: one JAX compilation per session.
+CONFIG = posetrack.TrackerConfig.paper("mht_h", num_hypotheses=2)
+ELBOW_KNEE_END = {"right_elbow": 4, "left_elbow": 7, "right_knee": 10, "left_knee": 13}
+C = np.array([1.0, -1.0, -1.0])  # camera frame <-> BVH y-up world (a diagonal matrix)
+
+
+@pytest.fixture(scope="module")
+def seq():
+    return posetrack.synth.generate(0, motion="walk", n_frames=N_FRAMES, width=320, height=240)
+
+
+@pytest.fixture(scope="module")
+def result(seq):
+    return posetrack.track(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, CONFIG)
+
+
+def save(out, result, seq, **kwargs):
+    kwargs.setdefault("depth", seq.depth)
+    return save_results(out, result, intrinsics=seq.intrinsics, **kwargs)
+
+
+def strict_json(path):
+    def refuse(name):
+        raise ValueError(f"{path}: non-standard JSON constant {name}")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def files_of(folder):
+    return {p.relative_to(folder): p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+# -- BVH --------------------------------------------------------------------------------------
+
+
+def bvh_keypoints(path) -> np.ndarray:
+    """(T, 18, 3) camera-frame metres of the 13 body keypoints a BVH carries (others NaN)."""
+    bvh = io.read_bvh(path)
+    names, parents = list(bvh.names), list(bvh.parents)
+    offsets, channels = list(bvh.offsets), list(bvh.channels)
+    for j, offset in sorted(bvh.end_sites.items()):  # End Sites as channel-less joints
+        names.append(f"{bvh.names[j]}_end")
+        parents.append(j)
+        offsets.append(offset)
+        channels.append(())
+    pos = io.bvh_forward_kinematics(np.asarray(parents), np.asarray(offsets), channels, bvh.motion)
+    pos = pos / 100.0 * C
+    out = np.full((len(pos), 18, 3), np.nan)
+    for name, k in BVH_KEYPOINTS.items():
+        out[:, k] = pos[:, names.index(name)]
+    for name, k in ELBOW_KNEE_END.items():
+        out[:, k] = pos[:, names.index(f"{name}_end")]
+    return out
+
+
+def random_params(rng, n):
+    """Random poses: any rotation per joint, quaternions of random norm and sign (wxyz)."""
+    q = rng.normal(size=(n, body.NUM_JOINTS, 4)) * rng.uniform(0.3, 3.0, size=(n, 1, 1))
+    q[0, 3] = [1.0, 1e-7, 0.0, -1e-7]  # near identity
+    q[1] = -q[0]  # the sign ambiguity: q and -q are the same pose
+    t = rng.uniform([-1, -1, 1.5], [1, 1, 5], size=(n, 3))
+    t[1] = t[0]
+    return np.concatenate([t, q.reshape(n, -1)], axis=1)
+
+
+def test_bvh_reproduces_model_fk_for_random_poses(tmp_path):
+    rng = np.random.default_rng(3)
+    shape = posetrack.BodyShape.create(thigh=0.47, forearm=0.23, head_scale=1.1)
+    params = random_params(rng, 12)
+    motion = bvh_from_params(shape, params)
+    path = tmp_path / "m.bvh"
+    io.write_bvh(path, **motion._asdict(), fps=25, camera_to_y_up=True)
+    got = bvh_keypoints(path)
+    want = np.asarray(jax.vmap(body.keypoints, in_axes=(None, 0))(shape, params))
+    joints = list(body.BODY_JOINTS)
+    err = np.linalg.norm(got[:, joints] - want[:, joints], axis=-1)
+    assert err.max() < 1e-4, err.max()  # 0.1 mm; the file is rounded to 0.01 um
+    np.testing.assert_allclose(got[1], got[0], atol=1e-6)  # -q posed like q
+
+
+def test_bvh_rest_pose_is_upright_and_faces_forward(tmp_path):
+    """A person standing in front of the camera, facing it, is the BVH rest pose: identity
+    rotations everywhere, y up, the subject's left at +x, the face towards +z."""
+    shape = posetrack.BodyShape.default()
+    params = np.asarray(body.facing_camera_params(2.5))[None]
+    path = tmp_path / "rest.bvh"
+    io.write_bvh(path, **bvh_from_params(shape, params)._asdict(), fps=30, camera_to_y_up=True)
+    bvh = io.read_bvh(path)
+    np.testing.assert_allclose(bvh.motion[0, :3], [0.0, 0.0, -250.0], atol=1e-6)
+    np.testing.assert_allclose(bvh.motion[0, 3:], 0.0, atol=1e-6)
+    off = dict(zip(bvh.names, bvh.offsets))
+    assert off["neck"][1] > 40 and off["left_shoulder"][0] > 10 and off["right_hip"][0] < -5
+    assert off["right_knee"][1] < -30  # legs hang down
+    head_top = bvh.end_sites[bvh.names.index("neck")]
+    assert head_top[1] > 25 and head_top[2] > 0  # above the neck, a little forward
+
+
+def test_bvh_from_result_is_the_tracked_motion(result):
+    motion = bvh_from_result(result)
+    assert motion.root_positions.shape == (N_FRAMES, 3)
+    assert motion.local_rotations_wxyz.shape == (N_FRAMES, 10, 4)
+    np.testing.assert_allclose(motion.root_positions, result.params[:, :3])
+    np.testing.assert_allclose(np.linalg.norm(motion.local_rotations_wxyz, axis=-1), 1.0)
+
+
+def test_bvh_rejects_nan_params(result):
+    bad = result.params.copy()
+    bad[4, 9] = np.nan
+    with pytest.raises(ValueError, match=r"params\[4, 9\]"):
+        bvh_from_params(result.shape, bad)
+
+
+# -- save_results -----------------------------------------------------------------------------
+
+
+def test_save_results_writes_every_output(result, seq, tmp_path):
+    out = tmp_path / "out"
+    saved = save(out, result, seq, fps=15.0, frame_ids=np.arange(N_FRAMES) + 100,
+                 info={"inputs": {"who": "test"}, "timing": {"track_s": 1.5}})  # fmt: skip
+    assert saved.overlay == out / "overlay.mp4" and saved.bvh == out / "motion.bvh"
+    names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    assert names == ["keypoints3d", "motion.bvh", "overlay.mp4", "poses.npz", "summary.json"]
+    poses = io.read_poses_npz(saved.poses)
+    assert float(poses["fps"]) == 15.0
+    np.testing.assert_array_equal(poses["frame_ids"], np.arange(N_FRAMES) + 100)
+    assert (out / "keypoints3d" / "000100.json").is_file()
+    assert io.read_bvh(saved.bvh).frame_time == pytest.approx(1 / 15)
+    capture = cv2.VideoCapture(str(saved.overlay))
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
+    assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(15.0)
+    summary = strict_json(out / "summary.json")
+    assert summary == saved.summary
+    assert summary["inputs"] == {"who": "test"}
+    assert summary["timing"]["track_s"] == 1.5 and summary["timing"]["compile_s"] > 0
+    assert summary["frame_ids"] == {"first": 100, "last": 115} and summary["fps"] == 15.0
+    assert sum(summary["status_counts"].values()) == N_FRAMES
+
+
+def test_unknown_fps_is_not_invented(result, seq, tmp_path):
+    saved = save(tmp_path / "out", result, seq, video=False)
+    assert "fps" not in io.read_poses_npz(saved.poses)
+    assert io.read_bvh(saved.bvh).frame_time == pytest.approx(1 / DEFAULT_FPS)
+    assert saved.summary["fps"] is None and saved.overlay is None
+
+
+def test_crash_in_bvh_writer_leaves_no_folder(result, seq, tmp_path, monkeypatch):
+    def broken(*args, **kwargs):
+        raise RuntimeError("disk on fire")
+
+    monkeypatch.setattr("posetrack._export.write_bvh", broken)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        save(tmp_path / "out", result, seq)
+    assert list(tmp_path.iterdir()) == []  # neither the folder nor a temporary one
+
+
+def test_interrupt_keeps_the_previous_complete_output(result, seq, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    save(out, result, seq)
+    before = files_of(out)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("posetrack._export.write_overlay", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        save(out, result, seq, fps=60.0)
+    assert files_of(out) == before
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_rerun_replaces_the_folder_as_a_whole(result, seq, tmp_path):
+    out = tmp_path / "out"
+    save(out, result, seq)
+    assert (out / "overlay.mp4").is_file()
+    save(out, result, seq, video=False)
+    assert not (out / "overlay.mp4").exists()  # no stale file from the previous run
+    assert strict_json(out / "summary.json")["files"]["overlay"] is None
+
+
+def test_foreign_folder_is_never_replaced(result, seq, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(FileExistsError, match="not written by posetrack"):
+        save(out, result, seq)
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(depth=None), "needs rgb or depth"),
+        (dict(frame_ids=np.arange(3)), r"frame_ids must be \(16,\)"),
+        (dict(fps=0.0), "fps must be positive"),
+        (dict(frame_ids=np.arange(N_FRAMES)[::-1].copy()), "increase strictly"),
+    ],
+)
+def test_bad_arguments_fail_before_writing(result, seq, tmp_path, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        save(tmp_path / "out", result, seq, **kwargs)
+    assert list(tmp_path.iterdir()) == []
+
+
+# -- overlay ----------------------------------------------------------------------------------
+
+
+def test_gif_fallback_has_every_frame_and_is_scaled(tmp_path):
+    frames = [np.full((300, 640, 3), 20 * i, np.uint8) for i in range(5)]
+    path = write_video(tmp_path / "v", iter(frames), fps=10.0, size=(640, 300), formats=("gif",))
+    assert path == tmp_path / "v.gif"
+    images = iio.imread(path, index=None)
+    assert images.shape[:3] == (5, 225, GIF_MAX_WIDTH)
+
+
+def test_gif_when_no_mp4_writer_opens(result, seq, tmp_path, monkeypatch):
+    monkeypatch.setattr("posetrack._overlay._Mp4Writer.ok", property(lambda self: False))
+    saved = save(tmp_path / "out", result, seq)
+    assert saved.overlay == tmp_path / "out" / "overlay.gif"
+    assert not (tmp_path / "out" / "overlay.mp4").exists()
+    assert len(iio.imread(saved.overlay, index=None)) == N_FRAMES
+    assert saved.summary["files"]["overlay"] == "overlay.gif"
+
+
+def test_odd_sized_mp4_is_written(tmp_path):
+    frames = [np.full((121, 161, 3), 40 * i, np.uint8) for i in range(4)]
+    path = write_video(tmp_path / "v", iter(frames), fps=10.0, size=(161, 121))
+    capture = cv2.VideoCapture(str(path))
+    assert path.suffix == ".mp4" and int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == 4
+
+
+@pytest.mark.parametrize("status, colour", [(0, GREEN), (1, RED), (2, GREY)])
+def test_overlay_frame_colours_the_skeleton_by_status(status, colour):
+    intr = posetrack.Intrinsics.create(fx=300, fy=300, cx=160, cy=120, width=320, height=240)
+    kp = np.asarray(body.keypoints(body.BodyShape.default(), body.facing_camera_params(3.0)))
+    black = np.zeros((240, 320, 3), np.uint8)
+    img = overlay_frame(black, kp, intr, status=status, delta=0.3, frame_id=7)
+    below_label = img[30:]  # the label band sits at the top
+    assert (np.abs(below_label.astype(int) - colour).sum(-1) < 30).sum() > 100
+    nothing = overlay_frame(black, np.full((18, 3), np.nan), intr, status=2, delta=np.nan,
+                            frame_id=7)  # fmt: skip
+    assert not nothing[30:].any()  # no estimate: nothing drawn, never a NaN crash
