@@ -103,6 +103,10 @@ class TrackerConfig:
     refine_steps: int = 0
     """LM steps of the final refinement of the output pose against the dense depth through
     the soft rasteriser (0 = off; not in the paper)."""
+    refine_width: int = 80
+    """Width of the depth maps the refinement renders (its Jacobian costs 43 renders)."""
+    refine_height: int = 60
+    """Height of the depth maps the refinement renders."""
     refine_weight: float = 2.0
     """Weight of Delta against the landmark term in the refinement."""
     lost_delta: float = 0.85
@@ -263,18 +267,22 @@ def _part_radii(shape: body.BodyShape) -> Array:
     return jnp.stack([z, to, to, ua, fa, to, ua, fa, to, th, sn, to, th, sn, z, z, z, z])
 
 
-def scoring_size(config: TrackerConfig, height: int, width: int) -> tuple[int, int]:
+def scoring_size(config: TrackerConfig, height: int, width: int, *, refine: bool = False) -> tuple[int, int]:
     """(h, w) of the scoring maps: ``score_width`` wide, and ``score_height`` high when it has the
     sensor's aspect ratio (within 2 %); otherwise the height follows the sensor's aspect ratio
-    (e.g. 160x90 for a 16:9 sensor), so the maps never drop part of the image."""
-    w, h = config.score_width, config.score_height
+    (e.g. 160x90 for a 16:9 sensor), so the maps never drop part of the image. With ``refine``,
+    the same for ``refine_width`` x ``refine_height``."""
+    if refine:
+        w, h = config.refine_width, config.refine_height
+    else:
+        w, h = config.score_width, config.score_height
     if abs(h / w - height / width) > 0.02 * height / width:
         h = max(8, round(w * height / width))
     return h, w
 
 
 def score_depth(
-    depth: Float[Array, "H W"], intrinsics: Intrinsics, config: TrackerConfig
+    depth: Float[Array, "H W"], intrinsics: Intrinsics, config: TrackerConfig, *, refine: bool = False
 ) -> tuple[Float[Array, "h w"], Intrinsics]:
     """The sensor depth at the scoring resolution, and the matching intrinsics.
 
@@ -283,7 +291,7 @@ def score_depth(
     cropped from the bottom/right first, which leaves fx, fy, cx, cy unchanged.
     """
     H, W = depth.shape
-    h, w = scoring_size(config, H, W)
+    h, w = scoring_size(config, H, W, refine=refine)
     if H < h or W < w:
         raise ValueError(f"depth {W}x{H} is smaller than the scoring size {w}x{h}")
     fy, fx = H // h, W // w
@@ -293,6 +301,17 @@ def score_depth(
         width=w * fx, height=h * fy,
     )  # fmt: skip
     return downsample_depth(cropped, (fy, fx)), crop_intr.scaled(w, h)
+
+
+def observation(config, depth, intrinsics, floor, center, *, refine: bool = False):
+    """(z_d, z_fg, known, intrinsics) at the scoring (or refinement) resolution: the paper's
+    observation preprocessing around ``center`` (the previous root position)."""
+    small, small_intr = score_depth(depth, intrinsics, config, refine=refine)
+    known = (small > 0).astype(small.dtype) if config.invalid_is_unknown else None
+    z_d, z_fg = observation_maps(
+        small, small_intr, center=center, radius=config.body_range, floor=(floor[:3], floor[3])
+    )
+    return z_d, z_fg, known, small_intr
 
 
 #: Floor plane (nx, ny, nz, d) used when none was found: 100 m below, so nothing is dropped.
@@ -411,12 +430,7 @@ def tracker_step(
     )
     params = fits.params
     # Hypothesis evaluation (Eq. (3)) on the downsampled, range-cropped observation.
-    small, small_intr = score_depth(depth, intrinsics, config)
-    known = (small > 0).astype(small.dtype) if config.invalid_is_unknown else None
-    z_d, z_fg = observation_maps(
-        small, small_intr, center=state.best[:3], radius=config.body_range,
-        floor=(floor[:3], floor[3]),
-    )  # fmt: skip
+    z_d, z_fg, known, small_intr = observation(config, depth, intrinsics, floor, state.best[:3])
     deltas = render_and_score(
         _capsules_batch(shape, params), z_d, z_fg, small_intr,
         sharpness=config.sharpness, d_M=config.d_M, known=known,
@@ -430,19 +444,24 @@ def tracker_step(
         )
         params = params.at[best].set(chosen)
     if config.refine_steps > 0:
-        # The winner's own subset (or, after a consensus refit, all landmarks near it).
+        # Polish the winner against the dense depth (at the refinement resolution), on the
+        # winner's own landmark subset; keep it if its Delta (scoring resolution) is not worse.
+        rz_d, rz_fg, rknown, r_intr = observation(
+            config, depth, intrinsics, floor, state.best[:3], refine=True
+        )
         refined = refine_pose(
             chosen, shape, lm, intrinsics, use3d=use3d[best], use2d=use2d[best],
-            z_d=z_d, z_fg=z_fg, score_intrinsics=small_intr, steps=config.refine_steps,
+            z_d=rz_d, z_fg=rz_fg, score_intrinsics=r_intr, steps=config.refine_steps,
             weight=config.refine_weight, sharpness=config.sharpness, d_M=config.d_M,
-            settings=config.fit, known=known,
+            settings=config.fit, known=rknown,
         )  # fmt: skip
         d_ref = render_and_score(
             _capsules_batch(shape, refined[None]), z_d, z_fg, small_intr,
-            sharpness=config.sharpness, d_M=config.d_M,
+            sharpness=config.sharpness, d_M=config.d_M, known=known,
         )[0]  # fmt: skip
-        chosen = refined
-        chosen_delta = d_ref
+        better = d_ref <= chosen_delta
+        chosen = jnp.where(better, refined, chosen)
+        chosen_delta = jnp.where(better, d_ref, chosen_delta)
         params = params.at[best].set(chosen)
     hyps = params
     if config.reseed and config.n > 1:

@@ -256,8 +256,8 @@ def read_openpose_json(
                     (u, v),
                     f"keypoint {_NAMES[layout][raw]} at (u={u:g}, v={v:g}) lies outside the "
                     f"{width}x{height} image by more than {margin:g} px; keypoints from a "
-                    "different image resolution? (out_of_image='drop' marks such points "
-                    "missing instead)",
+                    "different image resolution? (out_of_image='drop', or --drop-outside on "
+                    "the command line, marks such points missing instead)",
                 )
             dropped.append(k)
             xyc[k] = 0.0
