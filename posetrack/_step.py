@@ -111,6 +111,9 @@ class TrackerConfig:
     """Weight of Delta against the landmark term in the refinement."""
     lost_delta: float = 0.85
     """A frame whose best Delta exceeds this is 'lost'."""
+    lost_agreement: float = 0.6
+    """A frame whose output pose lies within ``consensus_distance`` of fewer than this share of
+    its 3D landmarks is 'lost' (an implausible pose: it explains too little of what is seen)."""
     lost_patience: int = 5
     """Consecutive lost frames before the tracker re-initialises from observations."""
     min_landmarks: int = 4
@@ -223,6 +226,9 @@ class FrameEstimate(eqx.Module):
     """Every hypothesis' fitted pose this frame (before any re-seeding)."""
     num_3d: Int[Array, ""]
     """Landmarks with depth (sum of F_i)."""
+    agreement: Float[Array, ""]
+    """Share of the 3D landmarks within ``consensus_distance`` of the output pose's keypoints
+    (1 when there are none): a pose that explains few of its landmarks is implausible."""
     num_2d: Int[Array, ""]
     """Detected keypoints (sum of f_i)."""
     spread: Float[Array, " kpt"]
@@ -474,6 +480,10 @@ def tracker_step(
         best=chosen,
         key=key_next,
     )
+    out_kps = kps[best]
+    near = jnp.linalg.norm(out_kps - lm.points3d, axis=-1) < config.consensus_distance
+    n3 = jnp.sum(lm.has_depth)
+    agreement = jnp.where(n3 > 0, jnp.sum(near & lm.has_depth) / jnp.maximum(n3, 1), 1.0)
     est = FrameEstimate(
         params=chosen,
         keypoints3d=kps[best],
@@ -481,7 +491,8 @@ def tracker_step(
         deltas=deltas.at[best].set(chosen_delta),
         best=best,
         hypotheses=params,
-        num_3d=jnp.sum(lm.has_depth),
+        num_3d=n3,
+        agreement=agreement,
         num_2d=jnp.sum(lm.detected),
         spread=spread,
         used3d=use3d,

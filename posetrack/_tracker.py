@@ -104,8 +104,8 @@ def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
     hypothesis used, 0.7 if it was only detected in 2D, 0.3 if it was not observed (the pose
     there is inferred from the rest of the body and the previous frame); agreement is
     ``exp(-(spread / 5 cm)^2)`` with spread the median distance of the other hypotheses' keypoint
-    from the selected one (1 for LVM). It is a relative indicator for weighting and display,
-    not a calibrated probability.
+    from the selected one (1 for LVM). In frames flagged lost, ``Tracker.run`` halves it. It is
+    a relative indicator for weighting and display, not a calibrated probability.
     """
     used = np.asarray(est.used3d)[int(est.best)]
     lm = est.landmarks
@@ -315,7 +315,7 @@ class Tracker:
             # Too little to fit: hold the previous pose, keep the hypotheses.
             return est, NO_OBSERVATION
         self._state = state
-        if float(est.delta) > self.config.lost_delta:
+        if float(est.delta) > self.config.lost_delta or float(est.agreement) < self.config.lost_agreement:
             self._lost_run += 1
             if self._lost_run >= self.config.lost_patience:
                 self.reset()
@@ -375,7 +375,7 @@ class Tracker:
             params[t] = np.asarray(est.params)
             kp3[t] = np.asarray(est.keypoints3d)
             delta[t] = float(est.delta)
-            conf_out[t] = keypoint_confidence(est)
+            conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
             bar.postfix = f"delta {float(est.delta):.2f}"
         # Never NaN parameters: frames without an estimate take the nearest estimated pose.
         have = np.flatnonzero(np.isfinite(params).all(axis=1))
