@@ -52,6 +52,7 @@ from ._step import TrackState as TrackState
 from ._step import tracker_step as tracker_step
 from ._tracker import Tracker as Tracker
 from ._tracker import TrackResult as TrackResult
+from ._tracker import lift_sequence as lift_sequence
 from ._tracker import track as track
 
 __version__ = "0.1.0"
@@ -64,6 +65,6 @@ __all__ = [
     "fit_floor_plane", "fit_hypotheses", "fit_pose", "initial_pose", "io", "keypoints",
     "lift_keypoints", "make_params", "naive_lifting", "observation_maps", "project",
     "render_and_score", "render_depth", "render_depth_batch", "success_curve", "synth", "track",
-    "SavedResults", "bvh_from_result", "save_results",
+    "SavedResults", "bvh_from_result", "save_results", "lift_sequence",
     "tracker_step",
 ]  # fmt: skip

@@ -117,10 +117,10 @@ class TrackerConfig:
     lost_patience: int = 5
     """Consecutive lost frames before the tracker re-initialises from observations."""
     min_landmarks: int = 4
+    """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = True
     """Fit a floor plane at (re-)initialisation and drop depth near it from the observation. A
     plane is used only if the body's root lies 0.3-1.6 m above it (else: no floor)."""
-    """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -235,7 +235,10 @@ class FrameEstimate(eqx.Module):
     """Per keypoint, the median distance (metres) of the hypotheses' keypoints from the selected
     one: how much the hypotheses disagree about it (0 for LVM)."""
     used3d: Bool[Array, "hyp kpt"]
-    """Which 3D landmarks each hypothesis used."""
+    """Which 3D landmarks each hypothesis drew."""
+    used2d: Bool[Array, "hyp kpt"]
+    """Which 2D landmarks each hypothesis drew (a 2D residual enters the fit only where the
+    keypoint's 3D landmark was not used)."""
     fit_ok: Bool[Array, " hyp"]
     """Whether each hypothesis' LM solve returned a finite pose."""
     landmarks: Landmarks
@@ -496,6 +499,7 @@ def tracker_step(
         num_2d=jnp.sum(lm.detected),
         spread=spread,
         used3d=use3d,
+        used2d=use2d,
         fit_ok=fits.ok,
         landmarks=lm,
     )
