@@ -101,7 +101,7 @@ def _unit(v: np.ndarray) -> np.ndarray | None:
 
 
 def initial_pose(
-    points3d: np.ndarray, has_depth: np.ndarray, shape: BodyShape
+    points3d: np.ndarray, has_depth: np.ndarray, shape: BodyShape, *, allow_partial: bool = False
 ) -> np.ndarray | None:
     """A first pose from one frame's lifted landmarks, or None if the torso is not seen.
 
@@ -115,8 +115,13 @@ def initial_pose(
         has_depth: (18,) F_i flags.
         shape: body dimensions.
 
+        allow_partial: without a left-right pair (shoulders or hips) or a torso point, start
+            from a person facing the camera placed by whatever landmarks are seen (at least 3)
+            instead of giving up; for heavily occluded starts.
+
     Returns:
-        (43,) float64 parameters, or None when neither hips nor shoulders give an axis.
+        (43,) float64 parameters, or None when neither hips nor shoulders give an axis (and
+        ``allow_partial`` is off, or fewer than 3 landmarks have depth).
     """
     P = np.asarray(points3d, dtype=np.float64)
     F = np.asarray(has_depth, dtype=bool)
@@ -131,11 +136,14 @@ def initial_pose(
         lefts.append(P[5] - P[2])
     if F[11] and F[8]:
         lefts.append(P[11] - P[8])
-    if not lefts or (hips is None and neck is None):
-        return None
-    left = _unit(np.sum([_unit(v) for v in lefts if _unit(v) is not None], axis=0))
+    units = [u for u in (_unit(v) for v in lefts) if u is not None]
+    left = _unit(np.sum(units, axis=0)) if units else None
     if left is None:
-        return None
+        if not allow_partial or F.sum() < 3:
+            return None
+        # No left-right pair seen (heavy occlusion): assume the person faces the camera, whose
+        # +x is then the subject's left; LM on the landmarks that are seen corrects the rest.
+        left = np.array([1.0, 0.0, 0.0])
     if hips is not None and neck is not None:
         up = neck - hips
     else:
@@ -147,7 +155,19 @@ def initial_pose(
     forward = np.cross(left, up)
     R0 = np.stack([left, up, forward], axis=1)  # columns: body x, y, z in the camera frame
     torso = float(shape.torso)
-    root = hips if hips is not None else neck - torso * up
+    hw, sw = float(shape.hip_width), float(shape.shoulder_width)
+    if hips is not None:
+        root = hips
+    elif neck is not None:
+        root = neck - torso * up
+    elif not allow_partial:
+        return None
+    elif F[8] or F[11]:  # one hip: step half the hip width toward the middle
+        root = P[8] + hw * left if F[8] else P[11] - hw * left
+    elif F[2] or F[5]:  # one shoulder
+        root = (P[2] + sw * left if F[2] else P[5] - sw * left) - torso * up
+    else:  # only limbs or the head: their centroid, a rough start for LM
+        root = P[F].mean(axis=0)
     q_root = np_matrix_to_quat(R0)
 
     joints = np.tile([1.0, 0.0, 0.0, 0.0], (9, 1))

@@ -196,6 +196,7 @@ class Tracker:
         self._state: TrackState | None = None
         self._floor = jnp.asarray(NO_FLOOR, _DTYPE)
         self._lost_run = 0
+        self._ever_initialized = False
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
         self.compile_s = 0.0
         self._init_timed = False
@@ -244,7 +245,13 @@ class Tracker:
         lm = self._lift(depth_m, kp, conf)
         if int(np.sum(np.asarray(lm.has_depth))) < self.config.min_landmarks:
             return False
-        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
+        # The very first start may be partial (heavily occluded sequences must start somehow);
+        # a re-initialisation after a loss waits for a torso, since a partial restart that
+        # throws away the track's history was measured to do more harm than good.
+        p0 = initial_pose(
+            np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
+            allow_partial=not self._ever_initialized,
+        )  # fmt: skip
         if p0 is None:
             return False
         t0 = time.perf_counter()
@@ -267,6 +274,7 @@ class Tracker:
             key=sub,
         )
         self._lost_run = 0
+        self._ever_initialized = True
         return True
 
     def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
