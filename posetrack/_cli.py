@@ -136,7 +136,7 @@ def _track(args) -> int:
             print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
         else:
             overrides["num_hypotheses"] = args.hypotheses
-    config = TrackerConfig.paper(args.method, **overrides)
+    config = TrackerConfig.recommended(args.method, **overrides)
     w, h = rec.intrinsics.width, rec.intrinsics.height
     print(
         f"tracking {n} frames ({w}x{h}) with {config.method}, {config.n} hypothes"
@@ -281,11 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     t.add_argument(
         "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
-        help="tracker variant, the paper's best setting of each (default: %(default)s)",
+        help="tracker variant (default: %(default)s, the recommended MHT_h; others use the paper's best settings)",
     )  # fmt: skip
     t.add_argument(
         "--hypotheses", type=int, metavar="N",
-        help="number of hypotheses (default: the paper's, 5 for mht_h/mht_g, 20 for mht_r)",
+        help="number of hypotheses (default: 10 for mht_h; the paper's 5 for mht_g, 20 for mht_r)",
     )  # fmt: skip
     t.add_argument(
         "--depth-scale", type=float, default=1000.0, metavar="S",

@@ -86,7 +86,7 @@ def run_demo(
         gen_s = time.perf_counter() - t0
         naive = None
         for method in methods:
-            config = TrackerConfig.paper(method)
+            config = TrackerConfig.recommended(method)
             tracker = Tracker(seq.intrinsics, config, seed=seed)
             res = tracker.run(
                 seq.depth, seq.keypoints2d, seq.confidence, progress=progress,

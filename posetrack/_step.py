@@ -156,6 +156,14 @@ class TrackerConfig:
         return 1 if self.method == "lvm" else self.num_hypotheses
 
     @staticmethod
+    def recommended(method: str = "mht_h", **overrides) -> TrackerConfig:
+        """What we ship for ``method``: the defaults for MHT_h (N = 10), the paper's best
+        (N, r, R) for the other methods (:meth:`paper`)."""
+        if method == "mht_h":
+            return TrackerConfig(**{"method": "mht_h", **overrides})
+        return TrackerConfig.paper(method, **overrides)
+
+    @staticmethod
     def paper(method: str, **overrides) -> TrackerConfig:
         """The paper's best setting of ``method`` (its Table 2): LVM; MHT_r N=20 r=0.05 R=0.15;
         MHT_g N=5 r=0.05 R=0.15; MHT_h N=5 r=R=0. Other fields take the defaults unless
