@@ -19,6 +19,8 @@ differentiable with respect to a soft rendering.
 
 from __future__ import annotations
 
+from functools import partial
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -257,6 +259,7 @@ def render_and_score(
     dtype=jnp.float32,
     group: int = 4,
     known: Float[Array, "H W"] | None = None,
+    vectorize: bool = True,
 ) -> Float[Array, " hyp"]:
     """Delta (Eq. (3) of the paper) of every hypothesis against one observation, fused with
     the rendering so the hypotheses' depth maps are never stored together.
@@ -285,6 +288,12 @@ def render_and_score(
             where it did not (holes, removed areas). Rendered foreground over unknown pixels
             is left out of |P_u|: the sensor cannot say the body is not there. ``None``: every
             pixel is known (Eq. (3) as the paper writes it).
+        vectorize: (``cull=True``) evaluate all hypotheses together (``vmap``: the culling
+            loops run to the longest hypothesis' trip count, which differs little between
+            hypotheses of one frame) instead of one after another (``lax.map``: one set of
+            loops per hypothesis). Memory stays bounded either way (chunk x tile x tile per
+            hypothesis); vectorised was faster on CPU, mostly for the hard renderer
+            (``benchmarks/README.md``).
 
     Returns:
         Delta per hypothesis, in [0, 1].
@@ -307,9 +316,11 @@ def render_and_score(
         known = None if known is None else jnp.asarray(known, dtype)
         obs = _tile_observation(z_d, z_fg, intrinsics, tile, dtype, known)
         margin = 0.0 if sharpness is None else _CULL_MARGIN / sharpness
-        return jax.lax.map(
-            lambda c: _score_culled(c, obs, sharpness, d_M, margin, chunk, group), capsules
-        )
+        score = partial(
+            _score_culled, obs=obs, sharpness=sharpness, d_M=d_M, margin=margin, chunk=chunk,
+            group=group,
+        )  # fmt: skip
+        return jax.vmap(score)(capsules) if vectorize else jax.lax.map(score, capsules)
     x, y = _ray_grid(intrinsics, dtype)
     return jax.lax.map(
         lambda c: _score_full(

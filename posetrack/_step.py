@@ -3,8 +3,9 @@
 One frame is ONE jitted call (:func:`tracker_step`): lifting, landmark weights and subset
 sampling, N Levenberg-Marquardt fits (vmapped), N renders and Delta scores (Eq. (3)), selection
 of the best hypothesis. Shapes are static: a configuration compiles once and then runs every
-frame without recompiling. The host-side ``Tracker`` (``_tracker.py``) adds what is not per-frame math:
-body-shape estimation, initialisation from observations, track-loss handling, progress.
+frame without recompiling. The host-side ``Tracker`` (``_tracker.py``) adds what is not
+per-frame math: body-shape estimation, initialisation from observations, track-loss
+handling, progress.
 """
 
 from __future__ import annotations
@@ -77,7 +78,12 @@ class TrackerConfig:
     score_height: int = 120
     """Height of the depth maps Delta is computed on."""
     sharpness: float = DEFAULT_SHARPNESS
-    """Soft rasteriser sharpness, 1/metre."""
+    """Soft rasteriser sharpness, 1/metre (the dense refinement; and the scoring when
+    ``hard_scoring`` is False)."""
+    hard_scoring: bool = True
+    """Score hypotheses (Eq. (3)) with the hard renderer, i.e. exact ray casting of the
+    capsules, as the paper does. Scoring needs no gradient; the hard renderer is 2-3x faster
+    than the soft one. False: the soft renderer at ``sharpness``."""
     body_range: float = 1.2
     """Observation preprocessing: keep depth within this distance (metres) of the previous
     estimate's root laterally and in depth (the paper's 'predefined range')."""
@@ -292,7 +298,9 @@ def _part_radii(shape: body.BodyShape) -> Array:
     return jnp.stack([z, to, to, ua, fa, to, ua, fa, to, th, sn, to, th, sn, z, z, z, z])
 
 
-def scoring_size(config: TrackerConfig, height: int, width: int, *, refine: bool = False) -> tuple[int, int]:
+def scoring_size(
+    config: TrackerConfig, height: int, width: int, *, refine: bool = False
+) -> tuple[int, int]:
     """(h, w) of the scoring maps: ``score_width`` wide, and ``score_height`` high when it has the
     sensor's aspect ratio (within 2 %); otherwise the height follows the sensor's aspect ratio
     (e.g. 160x90 for a 16:9 sensor), so the maps never drop part of the image. With ``refine``,
@@ -307,7 +315,11 @@ def scoring_size(config: TrackerConfig, height: int, width: int, *, refine: bool
 
 
 def score_depth(
-    depth: Float[Array, "H W"], intrinsics: Intrinsics, config: TrackerConfig, *, refine: bool = False
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    config: TrackerConfig,
+    *,
+    refine: bool = False,
 ) -> tuple[Float[Array, "h w"], Intrinsics]:
     """The sensor depth at the scoring resolution, and the matching intrinsics.
 
@@ -389,9 +401,30 @@ def _selection(config: TrackerConfig, key, shape, intrinsics, depth, lm: Landmar
     return use3d, use2d
 
 
+def _score(config, shape, params, z_d, z_fg, small_intr, known):
+    """Delta of Eq. (3) of each hypothesis in ``params`` (hyp, 43): the scoring renderer."""
+    return render_and_score(
+        _capsules_batch(shape, params), z_d, z_fg, small_intr,
+        sharpness=None if config.hard_scoring else config.sharpness, d_M=config.d_M,
+        known=known,
+    )  # fmt: skip
+
+
 def _capsules_batch(shape, params) -> Capsules:
     a, b, radius = jax.vmap(lambda p: body.capsules(shape, p))(params)
     return Capsules(a=a, b=b, radius=radius)
+
+
+def _reseed(config, params, deltas, best, chosen):
+    """The hypotheses carried to the next frame: with ``reseed``, the worst hypothesis and any
+    whose Delta trails the best by more than ``reseed_margin`` restart from the winner (they
+    then diverge again through their own subsets)."""
+    if not (config.reseed and config.n > 1):
+        return params
+    worse = (deltas > deltas[best] + config.reseed_margin) | (
+        jnp.arange(config.n) == jnp.argmax(deltas)
+    )
+    return jnp.where(worse[:, None], chosen[None, :], params)
 
 
 def _consensus_refit(
@@ -414,10 +447,7 @@ def _consensus_refit(
     use3d = lm.has_depth & (d3 < tau)
     use2d = lm.detected & (d2 < tau)
     refit = fit_pose(chosen, shape, lm, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit)
-    delta_refit = render_and_score(
-        _capsules_batch(shape, refit.params[None]), z_d, z_fg, small_intr,
-        sharpness=config.sharpness, d_M=config.d_M, known=known,
-    )[0]  # fmt: skip
+    delta_refit = _score(config, shape, refit.params[None], z_d, z_fg, small_intr, known)[0]
     better = delta_refit <= chosen_delta
     return jnp.where(better, refit.params, chosen), jnp.where(better, delta_refit, chosen_delta)
 
@@ -456,10 +486,7 @@ def tracker_step(
     params = fits.params
     # Hypothesis evaluation (Eq. (3)) on the downsampled, range-cropped observation.
     z_d, z_fg, known, small_intr = observation(config, depth, intrinsics, floor, state.best[:3])
-    deltas = render_and_score(
-        _capsules_batch(shape, params), z_d, z_fg, small_intr,
-        sharpness=config.sharpness, d_M=config.d_M, known=known,
-    )  # fmt: skip
+    deltas = _score(config, shape, params, z_d, z_fg, small_intr, known)
     best = jnp.argmin(deltas)
     chosen = params[best]
     chosen_delta = deltas[best]
@@ -480,22 +507,12 @@ def tracker_step(
             weight=config.refine_weight, sharpness=config.sharpness, d_M=config.d_M,
             settings=config.fit, known=rknown,
         )  # fmt: skip
-        d_ref = render_and_score(
-            _capsules_batch(shape, refined[None]), z_d, z_fg, small_intr,
-            sharpness=config.sharpness, d_M=config.d_M, known=known,
-        )[0]  # fmt: skip
+        d_ref = _score(config, shape, refined[None], z_d, z_fg, small_intr, known)[0]
         better = d_ref <= chosen_delta
         chosen = jnp.where(better, refined, chosen)
         chosen_delta = jnp.where(better, d_ref, chosen_delta)
         params = params.at[best].set(chosen)
-    hyps = params
-    if config.reseed and config.n > 1:
-        # The worst hypothesis, and any whose Delta trails the best by more than reseed_margin,
-        # restart from the winner (they then diverge again through their own subsets).
-        worse = (deltas > deltas[best] + config.reseed_margin) | (
-            jnp.arange(config.n) == jnp.argmax(deltas)
-        )
-        hyps = jnp.where(worse[:, None], chosen[None, :], hyps)
+    hyps = _reseed(config, params, deltas, best, chosen)
     kps = jax.vmap(lambda p: body.keypoints(shape, p))(params)
     spread = jnp.median(jnp.linalg.norm(kps - kps[best][None], axis=-1), axis=0)
     new_state = TrackState(

@@ -177,7 +177,7 @@ def stack(bodies, dtype=jnp.float64) -> Capsules:
 @pytest.fixture(scope="module")
 def scorer():
     return jax.jit(render_and_score, static_argnames=(
-        "cull", "tile", "chunk", "group", "batch_size", "dtype"))
+        "cull", "tile", "chunk", "group", "batch_size", "dtype", "vectorize"))
 
 
 @pytest.fixture(scope="module")
@@ -202,6 +202,10 @@ def test_render_and_score_culled_equals_full_and_unfused(scorer, scene, sharpnes
     z_d, z_fg, hyps = scene
     caps = stack(hyps)
     culled = scorer(caps, z_d, z_fg, K, sharpness=sharpness, dtype=jnp.float64)
+    # Hypotheses one after another (lax.map) or together (vmap, loops run to the longest).
+    one_by_one = scorer(caps, z_d, z_fg, K, sharpness=sharpness, dtype=jnp.float64,
+                        vectorize=False)
+    np.testing.assert_allclose(one_by_one, culled, atol=1e-12)
     full = scorer(caps, z_d, z_fg, K, sharpness=sharpness, cull=False, batch_size=3,
                   dtype=jnp.float64)
     unfused = []
