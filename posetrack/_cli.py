@@ -7,7 +7,7 @@ import os
 import sys
 import time
 
-_DETECT_INSTALL = 'pip install "posetrack[detect]"'
+_DETECT_INSTALL = 'pip install ".[detect]" (from a posetrack checkout)'
 
 
 def _demo(args) -> int:
@@ -257,8 +257,9 @@ def build_parser() -> argparse.ArgumentParser:
         "intrinsics JSON. Writes poses.npz, keypoints3d/*.json (EasyMocap), motion.bvh, "
         "overlay.mp4 (or .gif) and summary.json into --out, atomically.",
         epilog="Exit codes: 0 done, 2 bad input or arguments (one 'error:' line, nothing "
-        "written), 130 interrupted (nothing written). Set POSETRACK_TRACEBACK=1 to see "
-        "tracebacks instead of 'error:' lines.",
+        "written), 1 system error (disk full, permissions; nothing written), 130 interrupted "
+        "(nothing written). Set POSETRACK_TRACEBACK=1 to see tracebacks instead of 'error:' "
+        "lines.",
     )
     t.add_argument("--depth", required=True, metavar="DIR", help="folder of 16-bit depth PNGs")
     t.add_argument(
@@ -281,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     t.add_argument(
         "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
-        help="tracker variant (default: %(default)s, the recommended MHT_h; others use the paper's best settings)",
+        help="tracker variant (default: %(default)s, the recommended MHT_h; the others use "
+        "the paper's best settings)",
     )  # fmt: skip
     t.add_argument(
         "--hypotheses", type=int, metavar="N",
@@ -324,7 +326,8 @@ def _enable_compilation_cache() -> None:
     disables it. Entries are keyed by the compiled program, so a new posetrack or JAX version
     simply compiles afresh.
     """
-    path = os.environ.get("POSETRACK_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "posetrack", "jax"))
+    default = os.path.join(os.path.expanduser("~"), ".cache", "posetrack", "jax")
+    path = os.environ.get("POSETRACK_CACHE_DIR", default)
     if path.lower() in ("off", "none", "0", ""):
         return
     import jax
@@ -338,7 +341,8 @@ def _enable_compilation_cache() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit code (0 ok, 2 bad input, 130 interrupted)."""
+    """Run the command line; returns the exit code (0 ok, 1 system error, 2 bad input,
+    130 interrupted)."""
     args = build_parser().parse_args(argv)
     _enable_compilation_cache()
     if os.environ.get("POSETRACK_TRACEBACK"):

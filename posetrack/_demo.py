@@ -117,14 +117,18 @@ def run_demo(
         f"{'occl':>4} {'method':>6} {'N':>3} {'D mean':>7} {'D std':>6} {'C50':>5} {'C100':>5} "
         f"{'C150':>5} {'naive D':>8} {'ms/frame':>8} {'compile s':>9}"
     )
-    lines = [f"posetrack demo: {frames} frames of '{motion}' per occlusion level, seed {seed}",
-             f"machine: {_machine()}", "(D in mm over 13 body joints; C_j(d) = share of joints within d mm)",
-             header, "-" * len(header)]  # fmt: skip
+    lines = [
+        f"posetrack demo: {frames} frames of '{motion}' per occlusion level, seed {seed}",
+        f"machine: {_machine()}",
+        "(D in mm over 13 body joints; C_j(d) = share of joints within d mm)",
+        header,
+        "-" * len(header),
+    ]
     for r in rows:
         lines.append(
-            f"{r['occlusion']:>4} {r['method']:>6} {r['N']:>3} {r['D_mean_mm']:7.1f} {r['D_std_mm']:6.1f} "
-            f"{r['C_50mm']:5.2f} {r['C_100mm']:5.2f} {r['C_150mm']:5.2f} {r['naive_D_mean_mm']:8.1f} "
-            f"{r['ms_per_frame']:8.1f} {r['compile_s']:9.1f}"
+            f"{r['occlusion']:>4} {r['method']:>6} {r['N']:>3} {r['D_mean_mm']:7.1f} "
+            f"{r['D_std_mm']:6.1f} {r['C_50mm']:5.2f} {r['C_100mm']:5.2f} {r['C_150mm']:5.2f} "
+            f"{r['naive_D_mean_mm']:8.1f} {r['ms_per_frame']:8.1f} {r['compile_s']:9.1f}"
         )
     sheet = contact_sheet(pictures, columns=8)
     write_png(out / "contact_sheet.png", sheet)

@@ -242,8 +242,9 @@ def save_results(
 
     * ``poses.npz`` (:func:`posetrack.io.write_poses_npz`): ``keypoints3d`` float32
       (T, 18, 3) metres, camera frame (x right, y down, z forward), COCO-18, NaN where not
-      estimated (before the first estimate; frames without observation after it repeat the
-      last pose with confidence 0); ``confidence`` (T, 18); ``params`` (T, 43), never NaN;
+      estimated (before the first initialisation, and after a track loss until the tracker
+      re-initialises; frames without observation while tracking repeat the last pose with
+      confidence 0); ``confidence`` (T, 18); ``params`` (T, 43), never NaN;
       ``delta`` (T,); ``status`` strings; ``frame_ids``; ``fps`` when known.
     * ``keypoints3d/<frame:06d>.json`` (:func:`posetrack.io.write_easymocap`): EasyMocap
       ``[{"id": 0, "keypoints3d": [[x, y, z, c], ...]}]``, BODY_25 order, camera frame, metres.

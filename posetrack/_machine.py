@@ -46,4 +46,7 @@ def machine_info() -> dict[str, object]:
 def machine_summary() -> str:
     """One line: ``AMD EPYC, 2 cores, jax 0.10.2 (cpu), XLA_FLAGS=''``."""
     m = machine_info()
-    return f"{m['cpu']}, {m['cores']} cores, jax {m['jax']} ({m['backend']}), XLA_FLAGS='{m['XLA_FLAGS']}'"
+    return (
+        f"{m['cpu']}, {m['cores']} cores, jax {m['jax']} ({m['backend']}), "
+        f"XLA_FLAGS='{m['XLA_FLAGS']}'"
+    )

@@ -7,8 +7,9 @@ package is needed. H.264 (``avc1``) is not in those wheels, and imageio needs an
 writer opens, an animated GIF (imageio's bundled Pillow plugin) is written instead, scaled to
 at most :data:`GIF_MAX_WIDTH` pixels wide because GIF frames are kept in memory until the end.
 
-Colours: green skeleton = tracked, red = lost (Delta above ``lost_delta``), grey = no
-observation (the held pose, if any); small cyan dots = the 2D detections the tracker was given.
+Colours: green skeleton = tracked, red = lost (Delta above ``lost_delta`` or agreement
+below ``lost_agreement``), grey = no observation (the held pose, if any); small cyan dots =
+the 2D detections the tracker was given.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 For each hypothesis h, each landmark i gets a 3D selection weight W_i and a 2D weight w_i:
 
 * random exclusion: ``W^r = 1 - R``, ``w^r = 1 - r``;
-* model geometry: ``W^g = exp(-d_g / (2 sigma_g^2))``, d_g in [0, 1] (see :func:`geometry_distance`);
+* model geometry: ``W^g = exp(-d_g / (2 sigma_g^2))``, d_g in [0, 1]
+  (see :func:`geometry_distance`);
 * temporal continuity: ``W^h = exp(-d_h / (2 sigma_h^2))`` with
   ``d_h = min(|O_i,t - M^h_i,t-1|, d_hmax) / d_hmax``;
 * 2D weights from 3D ones: ``w = l W + (1 - l)``, l = 0.33;
@@ -29,7 +30,8 @@ from ._camera import Intrinsics, project
 from ._observe import Landmarks
 
 L_2D = 0.33
-"""The paper's l: ``w = l W + (1 - l)``, so about 1 in 3 excluded 3D landmarks also loses its 2D one."""
+"""The paper's l: ``w = l W + (1 - l)``, so about 1 in 3 excluded 3D landmarks also loses its
+2D one."""
 
 #: Partner keypoint of each keypoint for the geometric test: its skeleton parent; the neck, whose
 #: parent is the hips' midpoint, is paired with the right hip (the neck-hip distance is rigid in

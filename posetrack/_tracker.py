@@ -68,7 +68,7 @@ class TrackResult:
 
     keypoints3d: np.ndarray
     """(T, 18, 3) metres, camera frame, COCO-18; NaN where not estimated (before the first
-    initialisation)."""
+    initialisation, and after a track loss until re-initialisation succeeds)."""
     params: np.ndarray
     """(T, 43) pose parameters (never NaN: frames without an estimate repeat the nearest one)."""
     delta: np.ndarray
@@ -103,9 +103,10 @@ def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
     ``support * agreement``: support is 1 for a keypoint whose 3D landmark the selected
     hypothesis used, 0.7 if it was only detected in 2D, 0.3 if it was not observed (the pose
     there is inferred from the rest of the body and the previous frame); agreement is
-    ``exp(-(spread / 5 cm)^2)`` with spread the median distance of the other hypotheses' keypoint
-    from the selected one (1 for LVM). In frames flagged lost, ``Tracker.run`` halves it. It is
-    a relative indicator for weighting and display, not a calibrated probability.
+    ``exp(-(spread / 5 cm)^2)`` with spread the median over all N hypotheses (the selected one
+    included) of their keypoint's distance from the selected one (1 for LVM). In frames flagged
+    lost, ``Tracker.run`` halves it. It is a relative indicator for weighting and display, not
+    a calibrated probability.
     """
     used = np.asarray(est.used3d)[int(est.best)]
     lm = est.landmarks
@@ -323,7 +324,8 @@ class Tracker:
             # Too little to fit: hold the previous pose, keep the hypotheses.
             return est, NO_OBSERVATION
         self._state = state
-        if float(est.delta) > self.config.lost_delta or float(est.agreement) < self.config.lost_agreement:
+        cfg = self.config
+        if float(est.delta) > cfg.lost_delta or float(est.agreement) < cfg.lost_agreement:
             self._lost_run += 1
             if self._lost_run >= self.config.lost_patience:
                 self.reset()

@@ -13,7 +13,8 @@ import pytest
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-DATA_ROOT = Path(os.environ.get("POSETRACK_DATA", Path(__file__).resolve().parents[1] / ".." / "shared" / "data")).resolve()
+_DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+DATA_ROOT = Path(os.environ.get("POSETRACK_DATA", _DEFAULT_DATA)).resolve()
 
 
 @pytest.fixture

@@ -294,7 +294,7 @@ def test_detect_without_extra_says_how_to_install(installed, rec, tmp_path, monk
     args = without_keypoints(track_args(rec, tmp_path / "out", "--rgb", rec / "rgb", "--detect"))
     code, _, stderr = run_cli(*args)
     assert code == 2
-    assert 'pip install "posetrack[detect]"' in stderr and stderr.startswith("error: ")
+    assert "pip install \".[detect]\"" in stderr and stderr.startswith("error: ")
     assert "note:" not in stderr  # failed before loading the recording
     assert not (tmp_path / "out").exists()
 

@@ -82,9 +82,8 @@ def fits(frame):
     assert est is not None, "the tracker could not initialise from the detected keypoints"
     out = {"default": (est, status, tracker.shape)}
 
-    # Body shape from this one frame. Tracker.estimate_shape needs >= 3 measurements per length
-    # (min_samples=3), which one frame cannot give (2 arms, 2 legs), so it keeps the default
-    # body; estimate_shape itself takes min_samples. The tracker's landmarks carry the
+    # Body shape from this one frame, by posetrack.estimate_shape on the tracker's landmarks
+    # (one frame: at most 2 measurements per limb length). The tracker's landmarks carry the
     # surface-to-joint-centre offset, as estimate_shape expects.
     lm = est.landmarks
     shape, ratios = posetrack.estimate_shape(

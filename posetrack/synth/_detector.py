@@ -13,7 +13,8 @@ Error model (pixel sizes for a 640-px-wide image, scaled with the width):
 * confidence in [0, 1]: ~N(0.82, 0.08) when visible, pulled toward 0.45 when self-occluded
   and 0.3 when under an occluder, lower for small people;
 * misses (0, 0, 0): ``p_miss_visible`` when visible, up to ``p_miss_self`` when
-  self-occluded (``p_miss_face`` for the far eye/ear), ``p_miss_occluder`` under a rectangle,
+  self-occluded (``p_miss_face`` for the face keypoints, scaled by 1 - self-visibility),
+  ``p_miss_occluder`` under a rectangle,
   always outside the image;
 * hallucinated joints: a hidden elbow/wrist/knee/ankle that is still reported sits on a
   plausible but wrong limb: its 2D bone from the parent is rotated by a slowly varying angle
