@@ -27,6 +27,7 @@ import numpy as np
 import posetrack as pt
 from posetrack._demo import _machine
 from posetrack._fit import FitSettings
+from posetrack._residuals import ResidualSettings
 from posetrack._tracker import lift_sequence
 from posetrack._viz import line_plot, write_png
 
@@ -61,7 +62,9 @@ def methods(quick: bool) -> dict[str, pt.TrackerConfig]:
         "MHT_h": pt.TrackerConfig(),
         # The shipped MHT_h before the speed tuning of benchmarks/README.md (soft-rendered
         # scoring, 12 LM steps): the tuning must not cost accuracy.
-        "MHT_h untuned": pt.TrackerConfig(hard_scoring=False, fit=FitSettings(max_steps=12)),
+        "MHT_h untuned": pt.TrackerConfig(
+            hard_scoring=False, fit=FitSettings(max_steps=12, residuals=ResidualSettings("l2"))
+        ),
     }
     if not quick:
         rows["LVM +refine"] = pt.TrackerConfig.paper("lvm", refine_steps=3, refine_weight=1.0)

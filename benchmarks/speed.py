@@ -905,16 +905,16 @@ def main(argv=None):
         res = f"{w}x{h}"
         base = dict(score_width=w, score_height=h)
         runners: list[Runner] = [StepRunner(frames, TrackerConfig.paper("lvm", **base))]
-        runners += [StepRunner(frames, TrackerConfig.paper("mht_h", num_hypotheses=n, **base))
+        runners += [StepRunner(frames, TrackerConfig.recommended("mht_h", num_hypotheses=n, **base))
                     for n in ns]  # fmt: skip
         if not args.no_baselines:
             if (w, h) == RESOLUTIONS[0]:
                 runners += [
-                    LoopRunner(frames, TrackerConfig.paper("mht_h", num_hypotheses=n, **base))
+                    LoopRunner(frames, TrackerConfig.recommended("mht_h", num_hypotheses=n, **base))
                     for n in ns if n <= args.loop_max_n
                 ]  # fmt: skip
                 runners += [
-                    ScipyRunner(frames, TrackerConfig.paper("mht_h", num_hypotheses=n, **base),
+                    ScipyRunner(frames, TrackerConfig.recommended("mht_h", num_hypotheses=n, **base),
                                 max_frames=args.scipy_frames)
                     for n in ns if n in scipy_ns
                 ]  # fmt: skip

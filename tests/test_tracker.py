@@ -8,7 +8,8 @@ import pytest
 
 import posetrack as pt
 from posetrack import _tracker
-from posetrack._step import LOST, NO_OBSERVATION, TRACKED
+from posetrack._fit import FitSettings
+from posetrack._step import LOST, NO_OBSERVATION, TRACKED, TrackerConfig, split_config
 
 
 @pytest.fixture(scope="module")
@@ -109,3 +110,20 @@ def test_bad_input_names_the_argument(seq):
     k_nan[4] = np.nan
     est, status = tracker.update(d, k_nan, c)
     assert np.isfinite(np.asarray(est.params)).all()
+
+
+def test_config_fit_default_depends_on_method():
+    """MHT ships with plain squares (its subsets keep outliers out); LVM and every paper
+    setting keep Eq. (1)'s sum of norms; an explicit FitSettings is kept as given."""
+    assert TrackerConfig().fit.residuals.loss == "l2"
+    assert TrackerConfig(method="mht_g").fit.residuals.loss == "l2"
+    assert TrackerConfig(method="lvm").fit.residuals.loss == "l1"
+    for method in ("lvm", "mht_r", "mht_g", "mht_h"):
+        assert TrackerConfig.paper(method).fit.residuals.loss == "l1"
+    assert TrackerConfig(fit=FitSettings(max_steps=5)).fit == FitSettings(max_steps=5)
+    assert TrackerConfig().fit.max_steps == FitSettings().max_steps
+    # split_config rebuilds the config: the resolved settings survive it.
+    static, _ = split_config(TrackerConfig(sigma_h=0.3))
+    assert static.fit == TrackerConfig().fit
+    with pytest.raises(ValueError, match="TrackerConfig.fit"):
+        TrackerConfig(fit="l2")
