@@ -27,7 +27,7 @@ from posetrack._export import BVH_KEYPOINTS
 
 N_FRAMES = 16
 METHOD, HYPOTHESES = "mht_h", 2
-CONFIG = posetrack.TrackerConfig.paper(METHOD, num_hypotheses=HYPOTHESES)
+CONFIG = posetrack.TrackerConfig.recommended(METHOD, num_hypotheses=HYPOTHESES)  # as the CLI
 VANISH_START, VANISH_MIDDLE = (0, 1), (7, 8, 9)  # frames whose keypoints are removed
 WRISTS_ANKLES = {"right_elbow": 4, "left_elbow": 7, "right_knee": 10, "left_knee": 13}
 

@@ -255,7 +255,7 @@ def test_missing_mediapipe_is_a_clear_import_error(monkeypatch):
         lambda: detect.detect_image(image),
         lambda: detect.detect_keypoints([image], progress=False),
     ):
-        with pytest.raises(ImportError, match=r'pip install "posetrack\[detect\]"'):
+        with pytest.raises(ImportError, match=r'pip install "\.\[detect\]"'):
             call()
 
 
