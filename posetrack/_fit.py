@@ -33,7 +33,8 @@ class FitSettings:
     max_steps: int = 8
     """Per-frame cap. Tracking starts within a few centimetres; on our benchmark 8 steps were
     as accurate as 12 (within run-to-run noise) at two thirds of the fit cost (see
-    ``benchmarks/README.md``). The (re-)initialisation fit uses ``TrackerConfig.init_steps``."""
+    ``benchmarks/README.md``). MHT's default is 4 (``TrackerConfig.fit``); the
+    (re-)initialisation fit uses ``TrackerConfig.init_steps``."""
     rtol: float = 1e-4
     atol: float = 1e-6
     linear_solver: str = "cholesky"

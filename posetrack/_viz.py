@@ -145,7 +145,11 @@ PALETTE = (
     (148, 103, 189),
     (140, 86, 75),
     (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
 )
+"""Ten distinguishable line colours (RGB), in series order."""
 
 
 def line_plot(
@@ -158,10 +162,15 @@ def line_plot(
     ylim: tuple[float, float] | None = None,
 ) -> np.ndarray:
     """A simple line chart (RGB uint8) with axes, ticks, markers and a legend, drawn with OpenCV
-    so figures need no plotting library. ``series`` maps a label to (x values, y values)."""
-    W, H = size
+    so figures need no plotting library. ``series`` maps a label to (x values, y values). The
+    legend sits right of the plot area (``size`` is the plot's; the image grows to fit it)."""
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    legend_w = 45 + max(
+        (cv2.getTextSize(label, font, 0.45, 1)[0][0] for label in series), default=0
+    )
+    W, H = size[0] + legend_w, size[1]
     img = np.full((H, W, 3), 255, np.uint8)
-    left, right, top, bottom = 70, 20, 40, 55
+    left, right, top, bottom = 70, 20 + legend_w, 40, 55
     xs = np.concatenate([np.asarray(x, float) for x, _ in series.values()])
     ys = np.concatenate([np.asarray(y, float) for _, y in series.values()])
     ys = ys[np.isfinite(ys)]
@@ -185,7 +194,6 @@ def line_plot(
             int(H - bottom - (y - y0) / (y1 - y0) * (H - top - bottom)),
         )
 
-    font = cv2.FONT_HERSHEY_SIMPLEX
     cv2.rectangle(img, px(x0, y0), px(x1, y1), (0, 0, 0), 1)
     for v in np.linspace(y0, y1, 6):
         p = px(x0, v)
@@ -210,6 +218,7 @@ def line_plot(
             for p in pts:
                 cv2.circle(img, p, 4, color, -1, cv2.LINE_AA)
         ly = top + 12 + 20 * k
-        cv2.line(img, (W - right - 150, ly), (W - right - 125, ly), color, 3)
-        cv2.putText(img, label, (W - right - 118, ly + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
+        lx = W - legend_w + 5
+        cv2.line(img, (lx, ly), (lx + 25, ly), color, 3)
+        cv2.putText(img, label, (lx + 32, ly + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     return img

@@ -121,7 +121,8 @@ def test_config_fit_default_depends_on_method():
     for method in ("lvm", "mht_r", "mht_g", "mht_h"):
         assert TrackerConfig.paper(method).fit.residuals.loss == "l1"
     assert TrackerConfig(fit=FitSettings(max_steps=5)).fit == FitSettings(max_steps=5)
-    assert TrackerConfig().fit.max_steps == FitSettings().max_steps
+    assert TrackerConfig().fit.max_steps == 4
+    assert TrackerConfig(method="lvm").fit.max_steps == FitSettings().max_steps
     # split_config rebuilds the config: the resolved settings survive it.
     static, _ = split_config(TrackerConfig(sigma_h=0.3))
     assert static.fit == TrackerConfig().fit
