@@ -87,7 +87,7 @@ def run(args) -> dict:
     configs = methods(args.quick)
     records = []  # one per (sequence, level, method)
     table1 = []  # one per (sequence, method, r, R) at level args.table1_level
-    curves_d = np.arange(0, 301, 10)
+    curves_d = CURVES_D
     errors: dict[str, list[np.ndarray]] = {name: [] for name in [*configs, "naive"]}
     t_start = time.perf_counter()
     total = len(seqs) * len(levels)
@@ -209,13 +209,7 @@ def run(args) -> dict:
         print(f"{m:>14} " + " ".join(f"{summary['fig5'][m][lv]:6.1f}" for lv in levels))
 
     # -- write ----------------------------------------------------------------------------
-    fig3 = line_plot({m: (curves_d, np.asarray(summary["fig3"][m])) for m in names},
-                     title="Fig. 3: joint success rate C_j(d), all sequences and levels",
-                     xlabel="d (mm)", ylabel="C_j(d)", ylim=(0.0, 1.0))  # fmt: skip
-    fig5 = line_plot({m: (list(levels), [summary["fig5"][m][lv] for lv in levels]) for m in names},
-                     title="Fig. 5: D vs occlusion level", xlabel="occlusion level", ylabel="D (mm)")  # fmt: skip
-    write_png(out / "fig3_success.png", fig3)
-    write_png(out / "fig5_occlusion.png", fig5)
+    write_figures(summary, levels, out)
     result = {"machine": _machine(), "frames": args.frames, "levels": list(levels),
               "sequences": [{"motion": m, "seed": s} for m, s in seqs],
               "configs": {m: dataclasses.asdict(c) for m, c in configs.items()},
@@ -229,6 +223,26 @@ def run(args) -> dict:
     return result
 
 
+CURVES_D = np.arange(0, 301, 10)
+
+
+def write_figures(summary: dict, levels, out: Path) -> None:
+    """Fig. 3 and Fig. 5 as PNGs from the summary (also from a saved results.json)."""
+    names = list(summary["fig5"])
+    fig5_of = {m: {int(k): v for k, v in summary["fig5"][m].items()} for m in names}
+    fig3 = line_plot(
+        {m: (CURVES_D, np.asarray(summary["fig3"][m])) for m in names},
+        title="Fig. 3: joint success rate C_j(d), all sequences and levels",
+        xlabel="d (mm)", ylabel="C_j(d)", ylim=(0.0, 1.0),
+    )  # fmt: skip
+    fig5 = line_plot(
+        {m: (list(levels), [fig5_of[m][lv] for lv in levels]) for m in names},
+        title="Fig. 5: D vs occlusion level", xlabel="occlusion level", ylabel="D (mm)",
+    )  # fmt: skip
+    write_png(out / "fig3_success.png", fig3)
+    write_png(out / "fig5_occlusion.png", fig5)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -237,7 +251,17 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=60)
     p.add_argument("--table1-level", type=int, default=2)
     p.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "accuracy"))
-    run(p.parse_args(argv))
+    p.add_argument(
+        "--replot", action="store_true", help="only redraw the figures from --out/results.json"
+    )
+    args = p.parse_args(argv)
+    if args.replot:
+        out = Path(args.out)
+        saved = json.loads((out / "results.json").read_text())
+        write_figures(saved["summary"], saved["levels"], out)
+        print(f"wrote {out / 'fig3_success.png'}, {out / 'fig5_occlusion.png'}")
+        return 0
+    run(args)
     return 0
 
 
