@@ -6,8 +6,9 @@ the tracker's own), with real motion capture (CMU, MSR Action3D, UTKinect) where
 ``../shared/data`` is present and the built-in procedural motions otherwise, at occlusion levels
 0-4. Seeds are fixed and disjoint from the seeds the tracker's defaults were tuned on (100+).
 
-    python benchmarks/accuracy.py            # full run (~20-30 min on 2 cores)
-    python benchmarks/accuracy.py --quick    # a few sequences (~4 min)
+    python benchmarks/accuracy.py              # full run (~45 min on 2 cores)
+    python benchmarks/accuracy.py --quick      # a few sequences (~8 min)
+    python benchmarks/accuracy.py --markdown   # the README's tables from the saved results
 
 Prints the tables and writes ``results.json``, ``fig3_success.png``, ``fig5_occlusion.png``
 into ``--out`` (default ``benchmarks/results/accuracy``).
@@ -130,15 +131,17 @@ def run(args) -> dict:
                             cfg,
                             seed=seed,
                         )
-                        table1.append({"motion": motion, "seed": seed, "method": name, "r": r, "R": R,
-                                       "D_mean_mm": pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm})  # fmt: skip
+                        d_mm = pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm
+                        table1.append({"motion": motion, "seed": seed, "method": name,
+                                       "r": r, "R": R, "D_mean_mm": d_mm})  # fmt: skip
             print(" | ".join(line) + f"  [{time.perf_counter() - t0:.0f}s]", flush=True)
 
     names = [*configs, "naive"]
 
     def mean_of(method, level=None, min_level=None):
         vals = [r["D_mean_mm"] for r in records if r["method"] == method
-                and (level is None or r["level"] == level) and (min_level is None or r["level"] >= min_level)]  # fmt: skip
+                and (level is None or r["level"] == level)
+                and (min_level is None or r["level"] >= min_level)]  # fmt: skip
         return float(np.mean(vals)) if vals else float("nan")
 
     def std_of(method):
@@ -188,34 +191,17 @@ def run(args) -> dict:
     # -- print ----------------------------------------------------------------------------
     print(f"\nmachine: {_machine()}; {len(seqs)} sequences x {len(levels)} occlusion levels, "
           f"{args.frames} frames each; {time.perf_counter() - t_start:.0f} s")  # fmt: skip
-    print(
-        "\nTable 2: D (mm) per method, mean over sequences (std = mean over sequences of the std over frames)"
-    )
-    print(
-        f"{'method':>14} {'mean D':>7} {'std D':>6} {'clean':>6} {'occluded':>8} {'gain occl':>9} {'gain clean':>10}"
-    )
-    for m in names:
-        s = summary["table2"][m]
-        print(f"{m:>14} {s['D_mean_mm']:7.1f} {s['D_std_mm']:6.1f} {s['D_clean_mm']:6.1f} {s['D_occluded_mm']:8.1f} "
-              f"{100 * s['gain_vs_LVM_occluded']:8.1f}% {100 * s['gain_vs_LVM_clean']:9.1f}%")  # fmt: skip
-    print(f"\nTable 1: D (mm) over the (r, R) grid at occlusion level {args.table1_level}")
-    print(f"{'r':>5} {'R':>5} {'MHT_r':>7} {'MHT_g':>7} {'MHT_h':>7}")
-    for row in summary["table1"]:
-        print(f"{row['r']:5.2f} {row['R']:5.2f} " + " ".join(
-            f"{row.get(m, float('nan')):7.1f}" if m in row else f"{'N/A':>7}" for m in ("MHT_r", "MHT_g", "MHT_h")))  # fmt: skip
-    print("\nFig. 5: D (mm) per occlusion level")
-    print(f"{'method':>14} " + " ".join(f"{lv:>6}" for lv in levels))
-    for m in names:
-        print(f"{m:>14} " + " ".join(f"{summary['fig5'][m][lv]:6.1f}" for lv in levels))
 
     # -- write ----------------------------------------------------------------------------
     write_figures(summary, levels, out)
     result = {"machine": _machine(), "frames": args.frames, "levels": list(levels),
+              "table1_level": args.table1_level, "seconds": time.perf_counter() - t_start,
               "sequences": [{"motion": m, "seed": s} for m, s in seqs],
               "configs": {m: dataclasses.asdict(c) for m, c in configs.items()},
               "summary": summary, "records": records, "table1_records": table1}  # fmt: skip
     from posetrack.io._atomic import atomic_write_text
 
+    print("\n" + markdown_tables(result))
     atomic_write_text(out / "results.json", json.dumps(result, indent=1, default=str))
     print(
         f"\nwrote {out / 'results.json'}, {out / 'fig3_success.png'}, {out / 'fig5_occlusion.png'}"
@@ -224,6 +210,56 @@ def run(args) -> dict:
 
 
 CURVES_D = np.arange(0, 301, 10)
+
+# What each Table 2 row is, for the Markdown tables (rows not listed print without a setting).
+SETTINGS = {
+    "LVM": "LM on all landmarks (the paper's baseline)",
+    "MHT_r": "paper's best: N=20, r=0.05, R=0.15",
+    "MHT_g": "paper's best: N=5, r=0.05, R=0.15",
+    "MHT_h (paper)": "paper's best: N=5, r=R=0, without our reseed/consensus",
+    "MHT_h N=5": "the paper's MHT_h with our reseed/consensus",
+    "MHT_h": "**shipped default**: N=10, our additions, l2 loss, 4 LM steps",
+    "MHT_h untuned": "shipped, before the speed tuning (soft scoring, 12 LM steps)",
+    "LVM +refine": "LVM + dense refinement (3 steps)",
+    "MHT_h +refine": "shipped + dense refinement (3 steps)",
+    "naive": "each keypoint at its own depth (no model)",
+}
+
+
+def markdown_tables(saved: dict) -> str:
+    """Table 2, Fig. 5 and Table 1 of a saved ``results.json`` as Markdown (for the READMEs)."""
+    summary, levels = saved["summary"], saved["levels"]
+    t2, fig5 = summary["table2"], summary["fig5"]
+    lines = [
+        "**Table 2** (D in mm: mean over sequences of the per-sequence mean; std = mean of the "
+        "per-sequence std over frames; gain = reduction of D against LVM):",
+        "",
+        "| method | setting | D mean | D std | clean (level 0) | occluded (levels 1-4) "
+        "| gain occluded | gain clean |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for m, s in t2.items():
+        lines.append(
+            f"| {m} | {SETTINGS.get(m, '')} | {s['D_mean_mm']:.1f} | {s['D_std_mm']:.1f} "
+            f"| {s['D_clean_mm']:.1f} | {s['D_occluded_mm']:.1f} "
+            f"| {100 * s['gain_vs_LVM_occluded']:.1f} % | {100 * s['gain_vs_LVM_clean']:.1f} % |"
+        )
+    head = " | ".join(f"level {lv}" for lv in levels)
+    lines += ["", "**Fig. 5**: D (mm) per occlusion level", "",
+              f"| method | {head} | level {levels[-1]} / level {levels[0]} |",
+              "|---|" + "---|" * (len(levels) + 1)]  # fmt: skip
+    for m, row in fig5.items():
+        vals = [row[str(lv)] if str(lv) in row else row[lv] for lv in levels]
+        lines.append(f"| {m} | " + " | ".join(f"{v:.1f}" for v in vals)
+                     + f" | {vals[-1] / vals[0]:.2f} |")  # fmt: skip
+    lines += ["", f"**Table 1**: D (mm) over the (r, R) grid at occlusion level "
+              f"{saved.get('table1_level', 2)} (MHT_r N=20, MHT_g N=5, MHT_h as shipped, N=10; "
+              "N/A: r = R = 0 makes MHT_r's hypotheses identical, i.e. LVM)", "",
+              "| r | R | MHT_r | MHT_g | MHT_h |", "|---|---|---|---|---|"]  # fmt: skip
+    for row in summary["table1"]:
+        cells = [f"{row[m]:.1f}" if m in row else "N/A" for m in ("MHT_r", "MHT_g", "MHT_h")]
+        lines.append(f"| {row['r']:.2f} | {row['R']:.2f} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def write_figures(summary: dict, levels, out: Path) -> None:
@@ -254,7 +290,14 @@ def main(argv=None) -> int:
     p.add_argument(
         "--replot", action="store_true", help="only redraw the figures from --out/results.json"
     )
+    p.add_argument(
+        "--markdown", action="store_true",
+        help="only print the tables of --out/results.json as Markdown",
+    )  # fmt: skip
     args = p.parse_args(argv)
+    if args.markdown:
+        print(markdown_tables(json.loads((Path(args.out) / "results.json").read_text())))
+        return 0
     if args.replot:
         out = Path(args.out)
         saved = json.loads((out / "results.json").read_text())

@@ -914,8 +914,10 @@ def main(argv=None):
                     for n in ns if n <= args.loop_max_n
                 ]  # fmt: skip
                 runners += [
-                    ScipyRunner(frames, TrackerConfig.recommended("mht_h", num_hypotheses=n, **base),
-                                max_frames=args.scipy_frames)
+                    ScipyRunner(
+                        frames, TrackerConfig.recommended("mht_h", num_hypotheses=n, **base),
+                        max_frames=args.scipy_frames,
+                    )
                     for n in ns if n in scipy_ns
                 ]  # fmt: skip
         print(f"\n{res}: compiling {len(runners)} configurations", flush=True)

@@ -11,8 +11,8 @@ variants alike:
 * scoring: the N renders + Delta (``render_and_score``, culled) at 160x120 with the soft or the
   hard renderer, hypotheses one after another (``lax.map``) or together (``vmap``).
 
-The shipped settings are Cholesky, 4 steps (MHT; LVM 8), hard, vmap. Accuracy of the choices is measured by
-``benchmarks/accuracy.py`` (rows "MHT_h" and "MHT_h untuned"), not here.
+The shipped settings are Cholesky, 4 steps (MHT; LVM 8), hard, vmap. Accuracy of the choices
+is measured by ``benchmarks/accuracy.py`` (rows "MHT_h" and "MHT_h untuned"), not here.
 
     python benchmarks/step_tuning.py [--ns 1 5 20 100] [--reps 30] [--json PATH]
 
