@@ -175,6 +175,12 @@ def _central_difference(f, x, eps=1e-6):
 
 quat_strategy = st.sampled_from(["random", "near_identity", "negated"])
 
+# Jitted once for the whole module (hypothesis calls the test a dozen times; eager tracing of
+# jacfwd / jacrev and 86 eager FK calls per example cost ~40 s).
+_kp_flat = jax.jit(lambda shape, x: B.keypoints(shape, x).reshape(-1))
+_kp_jacfwd = jax.jit(jax.jacfwd(lambda shape, x: B.keypoints(shape, x).reshape(-1), argnums=1))
+_kp_jacrev = jax.jit(jax.jacrev(lambda shape, x: B.keypoints(shape, x).reshape(-1), argnums=1))
+
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 10_000), kind=quat_strategy)
@@ -187,10 +193,9 @@ def test_jacobian_matches_finite_differences(seed, kind):
         p[3:] = -p[3:]
     with jax.enable_x64(True):
         shape = B.BodyShape.default(dtype=jnp.float64)
-        f = lambda x: np.asarray(B.keypoints(shape, jnp.asarray(x))).reshape(-1)  # noqa: E731
-        fd = _central_difference(f, p)
-        fwd = np.asarray(jax.jacfwd(lambda x: B.keypoints(shape, x).reshape(-1))(jnp.asarray(p)))
-        rev = np.asarray(jax.jacrev(lambda x: B.keypoints(shape, x).reshape(-1))(jnp.asarray(p)))
+        fd = _central_difference(lambda x: np.asarray(_kp_flat(shape, jnp.asarray(x))), p)
+        fwd = np.asarray(_kp_jacfwd(shape, jnp.asarray(p)))
+        rev = np.asarray(_kp_jacrev(shape, jnp.asarray(p)))
     scale = np.abs(fd).max()
     np.testing.assert_allclose(fwd, fd, atol=1e-6 * max(scale, 1))
     np.testing.assert_allclose(rev, fwd, atol=1e-10)
@@ -204,27 +209,16 @@ def test_shape_jacobian_matches_finite_differences():
         leaves, treedef = jax.tree.flatten(shape)
         x0 = np.array([float(v) for v in leaves])
 
-        def f_shape(x):
-            s = jax.tree.unflatten(treedef, [jnp.asarray(v) for v in x])
-            a, b, r = B.capsules(s, jnp.asarray(p))
-            return np.concatenate(
-                [
-                    np.asarray(B.keypoints(s, jnp.asarray(p))).ravel(),
-                    np.asarray(a).ravel(),
-                    np.asarray(b).ravel(),
-                    np.asarray(r),
-                ]
-            )
-
         def f_jax(x):
-            s = jax.tree.unflatten(treedef, list(x))
+            s = jax.tree.unflatten(treedef, [x[i] for i in range(x.shape[0])])
             a, b, r = B.capsules(s, jnp.asarray(p))
             return jnp.concatenate(
                 [B.keypoints(s, jnp.asarray(p)).ravel(), a.ravel(), b.ravel(), r]
             )
 
-        fd = _central_difference(f_shape, x0)
-        J = np.asarray(jax.jacfwd(f_jax)(jnp.asarray(x0)))
+        f = jax.jit(f_jax)  # one compile instead of eager FK per perturbed shape
+        fd = _central_difference(lambda x: np.asarray(f(jnp.asarray(x))), x0)
+        J = np.asarray(jax.jit(jax.jacfwd(f_jax))(jnp.asarray(x0)))
     np.testing.assert_allclose(J, fd, atol=1e-6)
 
 
