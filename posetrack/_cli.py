@@ -28,11 +28,15 @@ def _demo(args) -> int:
 def _generate(args) -> int:
     from . import synth
 
+    if os.path.exists(args.out) and not args.overwrite:
+        raise FileExistsError(
+            f"generate: {args.out} already exists; choose another folder or pass --overwrite"
+        )
     seq = synth.generate(
         args.seed, motion=args.motion, n_frames=args.frames, occlusion_level=args.occlusion,
         width=args.width, height=args.height, progress=not args.quiet,
     )  # fmt: skip
-    synth.save(seq, args.out)
+    synth.save(seq, args.out, overwrite=args.overwrite)
     print(f"wrote {len(seq.depth)} frames to {args.out}")
     return 0
 
@@ -238,14 +242,25 @@ def build_parser() -> argparse.ArgumentParser:
         "generate",
         help="write a synthetic recording folder (depth PNGs, OpenPose JSON, intrinsics)",
     )
-    g.add_argument("out", help="output folder")
-    g.add_argument("--frames", type=int, default=60)
-    g.add_argument("--motion", default="walk")
-    g.add_argument("--occlusion", type=int, default=0)
-    g.add_argument("--width", type=int, default=640)
-    g.add_argument("--height", type=int, default=480)
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--quiet", action="store_true")
+    g.add_argument(
+        "out", help="output folder: depth/, rgb/, keypoints/, intrinsics.json, ground_truth.npz"
+    )
+    g.add_argument("--frames", type=int, default=60, help="frames (default: %(default)s)")
+    g.add_argument(
+        "--motion", default="walk",
+        help="built-in motion (walk, walk_across, wave, squat, box, reach, turn, idle) or a "
+        "motion-capture clip such as cmu:131_01 (posetrack.synth.list_real_motions(); needs "
+        "the shared data folder) (default: %(default)s)",
+    )  # fmt: skip
+    g.add_argument(
+        "--occlusion", type=int, default=0, choices=range(5), metavar="0-4",
+        help="occluder level as in the paper's Fig. 4 (default: %(default)s)",
+    )  # fmt: skip
+    g.add_argument("--width", type=int, default=640, help="image width (default: %(default)s)")
+    g.add_argument("--height", type=int, default=480, help="image height (default: %(default)s)")
+    g.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    g.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_generate)
 
     t = sub.add_parser(

@@ -149,6 +149,24 @@ def test_file_without_a_number_is_named(tmp_path):
     assert info.value.value == "background.png"
 
 
+def test_other_json_beside_openpose_files_is_ignored_with_a_note(tmp_path):
+    folder = make_recording(tmp_path / "rec")
+    (folder / "keypoints" / "params.json").write_text("{}")
+    (folder / "keypoints" / "camera_3.json").write_text("{}")  # would collide with frame 3
+    rec = _load(folder)
+    assert rec.frame_ids.tolist() == list(range(6))
+    assert any("ignored 2 file(s)" in n and "camera_3.json" in n for n in rec.notes), rec.notes
+
+
+def test_json_without_the_openpose_suffix_is_still_read(tmp_path):
+    folder = make_recording(tmp_path / "rec")
+    for p in (folder / "keypoints").iterdir():
+        p.rename(p.with_name(p.name.replace("_keypoints", "")))
+    rec = _load(folder)
+    assert rec.frame_ids.tolist() == list(range(6)) and rec.observed.all()
+    assert not any("ignored" in n for n in rec.notes)
+
+
 def test_bad_depth_file_is_caught_before_tracking(tmp_path):
     folder = make_recording(tmp_path / "rec")
     path = folder / "depth" / "000004.png"

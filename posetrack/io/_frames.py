@@ -61,7 +61,12 @@ def format_ranges(ids: Iterable[int], *, max_ranges: int = 12) -> str:
 
 
 def list_frames(
-    folder: str | os.PathLike[str], *, extensions: Sequence[str], what: str
+    folder: str | os.PathLike[str],
+    *,
+    extensions: Sequence[str],
+    what: str,
+    prefer_suffix: str | None = None,
+    notes: list[str] | None = None,
 ) -> dict[int, Path]:
     """Map frame number -> file for the files of ``folder`` with one of ``extensions``.
 
@@ -70,6 +75,10 @@ def list_frames(
         extensions: lower-case extensions with the dot, e.g. ``(".png",)``; matched
             case-insensitively.
         what: what the files are ("depth", "keypoints", "RGB"), for messages.
+        prefer_suffix: if some matching files end with this (e.g. ``"_keypoints.json"``,
+            case-insensitively), the others are ignored: OpenPose's own files win over a
+            ``params.json`` or ``camera.json`` left beside them.
+        notes: a list to append a one-line remark to when files are ignored.
 
     Returns:
         ``{frame_number: path}`` sorted by frame number.
@@ -98,6 +107,15 @@ def list_frames(
             0,
             f"no {what} frames: no file ending in {' / '.join(extensions)}; {held}",
         )
+    if prefer_suffix is not None:
+        preferred = [p for p in files if p.name.lower().endswith(prefer_suffix.lower())]
+        if preferred and len(preferred) < len(files):
+            ignored = sorted(p.name for p in files if p not in preferred)
+            shown = ", ".join(ignored[:3]) + (", ..." if len(ignored) > 3 else "")
+            if notes is not None:
+                notes.append(f"{what}: ignored {len(ignored)} file(s) in {folder} not ending in "
+                             f"{prefer_suffix} ({shown})")  # fmt: skip
+            files = preferred
     frames: dict[int, Path] = {}
     for p in files:
         number = frame_number(p.name)

@@ -13,7 +13,13 @@ import numpy as np
 from .._camera import Intrinsics
 from ._depth import DepthSequence, _check_scale, probe_depth_png
 from ._errors import InputError
-from ._frames import IMAGE_EXTENSIONS, format_ranges, list_frames, pair_frames
+from ._frames import (
+    IMAGE_EXTENSIONS,
+    KEYPOINTS_SUFFIX,
+    format_ranges,
+    list_frames,
+    pair_frames,
+)
 from ._intrinsics import _read_intrinsics
 from ._openpose import AMBIGUOUS_RATIO, read_openpose_json
 from ._rgb import VIDEO_EXTENSIONS, RgbFrames, RgbVideo
@@ -117,7 +123,10 @@ def load_recording(
     if keypoints_dir is not None:
         sources["keypoints"] = (
             Path(keypoints_dir),
-            list_frames(keypoints_dir, extensions=(".json",), what="keypoints"),
+            list_frames(
+                keypoints_dir, extensions=(".json",), what="keypoints",
+                prefer_suffix=KEYPOINTS_SUFFIX + ".json", notes=notes,
+            ),  # fmt: skip
         )
     video = None
     if rgb is not None:
