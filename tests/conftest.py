@@ -11,7 +11,30 @@ from pathlib import Path
 import jax
 import pytest
 
+from posetrack._cli import _enable_compilation_cache
+
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+
+def pytest_configure(config):
+    """Keep JAX's persistent compilation cache inside pytest's own cache folder.
+
+    The command-line tests call ``posetrack``'s ``main()`` in-process, which turns on the
+    persistent cache (``~/.cache/posetrack/jax`` by default) for the rest of the session; tests
+    must not write into the user's home. Here the cache goes to ``.pytest_cache/d/posetrack-jax``
+    (git-ignored; ``pytest --cache-clear`` empties it) and is on from the first test, so a second
+    local run reuses the compiled programs. ``-p no:cacheprovider`` runs without one. A
+    ``POSETRACK_CACHE_DIR`` set by the user wins.
+    """
+    if "POSETRACK_CACHE_DIR" in os.environ:
+        path = os.environ["POSETRACK_CACHE_DIR"]
+    elif getattr(config, "cache", None) is not None:
+        path = str(config.cache.mkdir("posetrack-jax"))
+    else:
+        path = "off"
+    os.environ["POSETRACK_CACHE_DIR"] = path
+    _enable_compilation_cache()  # what the command line does, now for every test
+
 
 _DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 DATA_ROOT = Path(os.environ.get("POSETRACK_DATA", _DEFAULT_DATA)).resolve()
