@@ -116,9 +116,11 @@ class TrackerConfig:
     """Frames used to estimate the body dimensions when none are given."""
     reseed: bool = True
     """Replace the worst hypothesis by the best after each frame (drift remedy)."""
-    reseed_margin: float = 0.05
+    reseed_margin: float = 0.15
     """With ``reseed``, also replace every hypothesis whose Delta exceeds the best's by more
-    than this (1.0: only the worst is replaced)."""
+    than this (1.0: only the worst is replaced). 0.05 reseeded too eagerly: a hypothesis that
+    had drawn a limb's true keypoints after a run of left/right swaps was overwritten before it
+    could win, and the limb stayed wrong (see README, Limitations)."""
     consensus_refit: bool = True
     """Refit the winner on all landmarks within ``consensus_distance`` of it (not in the paper)."""
     consensus_distance: float = 0.12
