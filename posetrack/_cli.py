@@ -208,6 +208,8 @@ def _track(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from .synth._motion import MOTIONS  # NumPy only: the help lists what generate accepts
+
     p = argparse.ArgumentParser(
         prog="posetrack",
         description="3D human pose tracking from RGB-D video and 2D keypoints (Makris & Argyros).",
@@ -248,9 +250,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--frames", type=int, default=60, help="frames (default: %(default)s)")
     g.add_argument(
         "--motion", default="walk",
-        help="built-in motion (walk, walk_across, wave, squat, box, reach, turn, idle) or a "
-        "motion-capture clip such as cmu:131_01 (posetrack.synth.list_real_motions(); needs "
-        "the shared data folder) (default: %(default)s)",
+        help=f"built-in motion ({', '.join(MOTIONS)}) or a motion-capture clip such as "
+        "cmu:131_01 (posetrack.synth.list_real_motions(); needs the shared data folder) "
+        "(default: %(default)s)",
     )  # fmt: skip
     g.add_argument(
         "--occlusion", type=int, default=0, choices=range(5), metavar="0-4",

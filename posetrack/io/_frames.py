@@ -108,9 +108,10 @@ def list_frames(
             f"no {what} frames: no file ending in {' / '.join(extensions)}; {held}",
         )
     if prefer_suffix is not None:
-        preferred = [p for p in files if p.name.lower().endswith(prefer_suffix.lower())]
+        suffix = prefer_suffix.lower()
+        preferred = [p for p in files if p.name.lower().endswith(suffix)]
         if preferred and len(preferred) < len(files):
-            ignored = sorted(p.name for p in files if p not in preferred)
+            ignored = sorted(p.name for p in files if not p.name.lower().endswith(suffix))
             shown = ", ".join(ignored[:3]) + (", ..." if len(ignored) > 3 else "")
             if notes is not None:
                 notes.append(f"{what}: ignored {len(ignored)} file(s) in {folder} not ending in "
