@@ -1,13 +1,19 @@
 """posetrack: differentiable multiple-hypothesis 3D human pose tracking from RGB-D video.
 
 A JAX implementation of Makris & Argyros, "Robust 3D Human Pose Estimation Guided by Filtered
-Subsets of Body Keypoints". The pipeline, one module per stage:
+Subsets of Body Keypoints". The core, one module per stage:
 
-    _body (model, FK) -> _camera -> _observe (lifting) -> _residuals (Eq. 1) -> _fit (LM)
-    -> _render (soft depth rasteriser) -> _depthobs + _score (Eq. 3) -> _select (subsets)
-    -> _step (one batched frame) -> _tracker (sequences); io, synth, metrics, viz, cli around it.
+    _body (model, FK) -> _geometry (body-derived constants) -> _camera -> _observe (lifting)
+    -> _residuals (Eq. 1) -> _fit (LM) -> _score (Eq. 3) -> _render (rasteriser, render+score)
+    -> _depthobs (observation preprocessing) -> _select (landmark subsets) -> _config
+    -> _step (one batched frame) -> _tracker (sequences); _metrics, _init, _refine beside them.
+
+Around the core: ``posetrack.io`` (file formats), ``posetrack.synth`` (a synthetic RGB-D
+generator that is not the tracker's model), ``posetrack.detect`` (optional 2D detector) and
+``posetrack.app`` (command line, demo, result files, pictures).
 """
 
+from . import app as app
 from . import io as io
 from . import synth as synth
 from ._body import BODY_JOINTS as BODY_JOINTS
@@ -21,12 +27,12 @@ from ._body import make_params as make_params
 from ._camera import Intrinsics as Intrinsics
 from ._camera import backproject as backproject
 from ._camera import project as project
+from ._config import BEYOND_THE_PAPER as BEYOND_THE_PAPER
+from ._config import METHODS as METHODS
+from ._config import TrackerConfig as TrackerConfig
 from ._depthobs import downsample_depth as downsample_depth
 from ._depthobs import fit_floor_plane as fit_floor_plane
 from ._depthobs import observation_maps as observation_maps
-from ._export import SavedResults as SavedResults
-from ._export import bvh_from_result as bvh_from_result
-from ._export import save_results as save_results
 from ._fit import FitResult as FitResult
 from ._fit import FitSettings as FitSettings
 from ._fit import fit_hypotheses as fit_hypotheses
@@ -35,36 +41,55 @@ from ._init import estimate_shape as estimate_shape
 from ._init import initial_pose as initial_pose
 from ._metrics import Accuracy as Accuracy
 from ._metrics import accuracy as accuracy
+from ._metrics import joint_errors as joint_errors
 from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
 from ._observe import Landmarks as Landmarks
 from ._observe import lift_keypoints as lift_keypoints
+from ._refine import refine_pose as refine_pose
 from ._render import Capsules as Capsules
+from ._render import render_and_score as render_and_score
 from ._render import render_depth as render_depth
 from ._render import render_depth_batch as render_depth_batch
 from ._residuals import ResidualSettings as ResidualSettings
 from ._score import delta as delta
-from ._score import render_and_score as render_and_score
-from ._step import METHODS as METHODS
+from ._score import delta_batch as delta_batch
 from ._step import FrameEstimate as FrameEstimate
-from ._step import TrackerConfig as TrackerConfig
 from ._step import TrackState as TrackState
 from ._step import tracker_step as tracker_step
+from ._tracker import LOST as LOST
+from ._tracker import NO_OBSERVATION as NO_OBSERVATION
+from ._tracker import STATUS_NAMES as STATUS_NAMES
+from ._tracker import TRACKED as TRACKED
 from ._tracker import Tracker as Tracker
 from ._tracker import TrackResult as TrackResult
 from ._tracker import lift_sequence as lift_sequence
 from ._tracker import track as track
+from .app import SavedResults as SavedResults
+from .app import bvh_from_result as bvh_from_result
+from .app import save_results as save_results
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "BODY_JOINTS", "KEYPOINT_NAMES", "METHODS", "NUM_PARAMS", "Accuracy", "BodyShape", "Capsules",
-    "FitResult", "FitSettings", "FrameEstimate", "Intrinsics", "Landmarks", "ResidualSettings",
-    "TrackResult", "TrackState", "Tracker", "TrackerConfig", "accuracy", "backproject",
-    "capsules", "delta", "downsample_depth", "estimate_shape", "facing_camera_params",
-    "fit_floor_plane", "fit_hypotheses", "fit_pose", "initial_pose", "io", "keypoints",
-    "lift_keypoints", "make_params", "naive_lifting", "observation_maps", "project",
-    "render_and_score", "render_depth", "render_depth_batch", "success_curve", "synth", "track",
-    "SavedResults", "bvh_from_result", "save_results", "lift_sequence",
-    "tracker_step",
+    # subpackages
+    "app", "io", "synth",
+    # body model and camera
+    "BODY_JOINTS", "KEYPOINT_NAMES", "NUM_PARAMS", "BodyShape", "Intrinsics", "backproject",
+    "capsules", "facing_camera_params", "keypoints", "make_params", "project",
+    # observations
+    "Landmarks", "downsample_depth", "fit_floor_plane", "lift_keypoints", "observation_maps",
+    # fitting (Eq. (1))
+    "FitResult", "FitSettings", "ResidualSettings", "estimate_shape", "fit_hypotheses",
+    "fit_pose", "initial_pose", "refine_pose",
+    # rendering and scoring (Eq. (3))
+    "Capsules", "delta", "delta_batch", "render_and_score", "render_depth", "render_depth_batch",
+    # the tracker
+    "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
+    "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
+    "track", "tracker_step",
+    # metrics
+    "Accuracy", "accuracy", "joint_errors", "naive_lifting", "success_curve",
+    # result files
+    "SavedResults", "bvh_from_result", "save_results",
 ]  # fmt: skip

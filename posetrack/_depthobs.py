@@ -14,6 +14,10 @@ Three steps:
    point lies in a body-sized region around the previous root position and above the floor.
 
 Depth maps are in metres; 0 or NaN marks an invalid pixel on input, 0 on output.
+
+:func:`tracker_observation` chains 1 and 3 at the tracker's scoring size
+(:func:`scoring_size`, :func:`score_depth`), and :func:`tracker_landmarks` lifts the keypoints
+with the tracker's settings: together, what one tracker step observes.
 """
 
 from __future__ import annotations
@@ -24,7 +28,11 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ._body import BodyShape
 from ._camera import Intrinsics, pixel_rays_np
+from ._config import TrackerConfig
+from ._geometry import surface_offsets
+from ._observe import Landmarks, lift_keypoints
 
 DEFAULT_RADIUS = 1.1
 """Metres: horizontal distance from the vertical axis through the root that can hold body:
@@ -62,7 +70,7 @@ def _oddeven_merge_pairs(n: int) -> list[tuple[int, int]]:
     return pairs
 
 
-def _sort_last_axis(values: Array) -> Array:
+def sort_last_axis(values: Array) -> Array:
     """Sort along the last axis. Small blocks (<= 32 keys, e.g. 4x4 for 640x480 -> 160x120) go
     through a sorting network of elementwise min/max on whole images: ~10x faster than
     ``jnp.sort`` on CPU (2 ms instead of 18 ms for 19200 blocks of 16), which sorts block by
@@ -119,7 +127,7 @@ def downsample_depth(
     valid = jnp.isfinite(blocks) & (blocks > 0)
     n_valid = jnp.sum(valid, axis=-1)
     # Invalid pixels sort last (+inf), so the k-th smallest valid depth sits at index k.
-    ordered = _sort_last_axis(jnp.where(valid, blocks, jnp.inf))
+    ordered = sort_last_axis(jnp.where(valid, blocks, jnp.inf))
     mid = jnp.maximum(n_valid - 1, 0) // 2
     median = jnp.take_along_axis(ordered, mid[..., None], axis=-1)[..., 0]
     enough = n_valid >= max(1, math.ceil(min_valid * fy * fx))
@@ -300,3 +308,99 @@ def fit_floor_plane(
         normal = np.linalg.svd(inliers - centroid, full_matrices=False)[2][-1]
         normal, offset = oriented(normal, -float(normal @ centroid))
     return normal, float(offset)
+
+
+#: Floor plane (nx, ny, nz, d) used when none was found: 100 m below, so nothing is dropped.
+NO_FLOOR = (0.0, -1.0, 0.0, 100.0)
+
+
+def scoring_size(
+    config: TrackerConfig, height: int, width: int, *, refine: bool = False
+) -> tuple[int, int]:
+    """(h, w) of the scoring maps: ``score_width`` wide, and ``score_height`` high when it has the
+    sensor's aspect ratio (within 2 %); otherwise the height follows the sensor's aspect ratio
+    (e.g. 160x90 for a 16:9 sensor), so the maps never drop part of the image. With ``refine``,
+    the same for ``refine_width`` x ``refine_height``."""
+    if refine:
+        w, h = config.refine_width, config.refine_height
+    else:
+        w, h = config.score_width, config.score_height
+    if abs(h / w - height / width) > 0.02 * height / width:
+        h = max(8, round(w * height / width))
+    return h, w
+
+
+def score_depth(
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    config: TrackerConfig,
+    *,
+    refine: bool = False,
+) -> tuple[Float[Array, "h w"], Intrinsics]:
+    """The sensor depth at the scoring resolution, and the matching intrinsics.
+
+    Blocks of ``(H // h) x (W // w)`` pixels are reduced by :func:`downsample_depth`; a
+    remainder of rows/columns that does not fill a block (e.g. 1080 = 9 x 120 fits, 1000 would
+    not) is cropped from the bottom/right first, which leaves fx, fy, cx, cy unchanged.
+    """
+    H, W = depth.shape
+    h, w = scoring_size(config, H, W, refine=refine)
+    if H < h or W < w:
+        raise ValueError(f"depth {W}x{H} is smaller than the scoring size {w}x{h}")
+    fy, fx = H // h, W // w
+    cropped = depth[: h * fy, : w * fx]
+    crop_intr = Intrinsics(
+        fx=intrinsics.fx, fy=intrinsics.fy, cx=intrinsics.cx, cy=intrinsics.cy,
+        width=w * fx, height=h * fy,
+    )  # fmt: skip
+    return downsample_depth(cropped, (fy, fx)), crop_intr.scaled(w, h)
+
+
+def tracker_observation(
+    config: TrackerConfig,
+    depth: Float[Array, "H W"],
+    intrinsics: Intrinsics,
+    floor: Float[Array, 4],
+    center: Float[Array, 3],
+    *,
+    refine: bool = False,
+) -> tuple[Float[Array, "h w"], Float[Array, "h w"], Float[Array, "h w"] | None, Intrinsics]:
+    """The paper's observation preprocessing at the scoring (or refinement) resolution.
+
+    Args:
+        config: scoring size, ``body_range``, ``invalid_is_unknown``.
+        depth: (H, W) sensor depth, metres (0 / NaN invalid).
+        intrinsics: the sensor's camera.
+        floor: (nx, ny, nz, d) floor plane, ``NO_FLOOR`` when unknown.
+        center: the previous root position, camera frame, metres.
+        refine: use the refinement resolution instead of the scoring one.
+
+    Returns:
+        ``(z_d, z_fg, known, intrinsics)``: the observation maps, the valid-depth mask (``None``
+        unless ``config.invalid_is_unknown``) and the camera at that resolution.
+    """
+    small, small_intr = score_depth(depth, intrinsics, config, refine=refine)
+    known = (small > 0).astype(small.dtype) if config.invalid_is_unknown else None
+    z_d, z_fg = observation_maps(
+        small, small_intr, center=center, radius=config.body_range, floor=(floor[:3], floor[3])
+    )
+    return z_d, z_fg, known, small_intr
+
+
+def tracker_landmarks(
+    config: TrackerConfig,
+    shape: BodyShape,
+    intrinsics: Intrinsics,
+    depth: Float[Array, "H W"],
+    keypoints2d: Float[Array, "kpt 2"],
+    confidence: Float[Array, " kpt"],
+) -> Landmarks:
+    """:func:`~posetrack.lift_keypoints` with the tracker's settings: its lifting window and
+    confidence threshold, and with ``config.surface_offset`` each landmark pushed back by
+    :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre)."""
+    offset = surface_offsets(shape) if config.surface_offset else 0.0
+    return lift_keypoints(
+        depth, keypoints2d, confidence, intrinsics,
+        window=config.lift_window, confidence_threshold=config.confidence_threshold,
+        depth_offset=offset,
+    )  # fmt: skip

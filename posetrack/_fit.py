@@ -68,7 +68,32 @@ class FitResult(eqx.Module):
     """The solver returned a finite pose (converged or stopped at ``max_steps``)."""
 
 
-def _residual_fn(params, args):
+def fit_problem(
+    start_params: Float[Array, 43],
+    shape: BodyShape,
+    landmarks: Landmarks,
+    intrinsics: Intrinsics,
+    *,
+    use3d: Bool[Array, " kpt"],
+    use2d: Bool[Array, " kpt"],
+    residuals: ResidualSettings,
+) -> tuple[Float[Array, 43], tuple]:
+    """``(start, args)`` of Eq. (1) as a least-squares problem for :func:`fit_residuals`.
+
+    The masks are made consistent with the landmarks (a 3D residual needs F_i; a 2D residual
+    needs f_i and is used only where the 3D one is not), the start is normalised, and the 2D
+    residuals' metres-per-pixel scale is fixed at the start pose.
+    """
+    use3d = use3d & landmarks.has_depth
+    use2d = use2d & landmarks.detected & ~use3d
+    start = normalize_params(start_params)
+    mpp = pixel_scale(start, shape, intrinsics)
+    return start, (shape, landmarks, intrinsics, use3d, use2d, mpp, start, residuals)
+
+
+def fit_residuals(params: Float[Array, 43], args: tuple) -> Float[Array, " residual"]:
+    """The residual vector of Eq. (1) plus the regularisers, for ``args`` from
+    :func:`fit_problem` (optimistix' ``fn(y, args)`` form)."""
     shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings = args
     lm = landmark_residuals(
         params, shape, landmarks, intrinsics,
@@ -103,13 +128,13 @@ def fit_pose(
     Returns:
         :class:`FitResult`; never raises inside jit, never returns NaN parameters.
     """
-    use3d = use3d & landmarks.has_depth
-    use2d = use2d & landmarks.detected & ~use3d
-    start = normalize_params(start_params)
-    mpp = pixel_scale(start, shape, intrinsics)
-    args = (shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings.residuals)
+    start, args = fit_problem(
+        start_params, shape, landmarks, intrinsics,
+        use3d=use3d, use2d=use2d, residuals=settings.residuals,
+    )  # fmt: skip
+    _, _, _, use3d, use2d, mpp, _, _ = args
     sol = optx.least_squares(
-        _residual_fn,
+        fit_residuals,
         settings.solver(),
         start,
         args=args,

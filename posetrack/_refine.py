@@ -10,23 +10,19 @@ optimistix' ``jac="fwd"`` linearisation needs.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax.numpy as jnp
 import optimistix as optx
 
 from ._body import BodyShape, capsules, normalize_params
 from ._camera import Intrinsics
-from ._fit import FitSettings, _residual_fn
+from ._fit import FitSettings, fit_problem, fit_residuals
 from ._observe import Landmarks
-from ._render import Capsules
-from ._residuals import pixel_scale
-from ._score import render_and_score
+from ._render import Capsules, render_and_score
 
 
 def _refine_residuals(params, args):
     (fit_args, shape, z_d, z_fg, small_intr, sharpness, d_M, weight, known) = args
-    lm = _residual_fn(params, fit_args)
+    lm = fit_residuals(params, fit_args)
     a, b, r = capsules(shape, params)
     delta = render_and_score(
         Capsules(a=a[None], b=b[None], radius=r[None]), z_d, z_fg, small_intr,
@@ -57,15 +53,14 @@ def refine_pose(
 ):
     """Polish ``params`` on its landmarks plus ``weight * Delta`` (soft). Returns the pose
     (the input pose if the solve fails)."""
-    use3d = use3d & landmarks.has_depth
-    use2d = use2d & landmarks.detected & ~use3d
-    start = normalize_params(params)
-    mpp = pixel_scale(start, shape, intrinsics)
-    fit_args = (shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings.residuals)
+    start, fit_args = fit_problem(
+        params, shape, landmarks, intrinsics, use3d=use3d, use2d=use2d,
+        residuals=settings.residuals,
+    )  # fmt: skip
     args = (fit_args, shape, z_d, z_fg, score_intrinsics, sharpness, d_M, weight, known)
     sol = optx.least_squares(
         _refine_residuals,
-        dataclasses.replace(settings).solver(),
+        settings.solver(),
         start,
         args=args,
         max_steps=steps,

@@ -16,6 +16,9 @@ random sampling without replacement (Gumbel top-k: add Gumbel noise to ``log W``
 S largest; exactly sequential weighted sampling without replacement, with static shapes).
 
 Weights are zero where there is nothing to select (no depth for W, no detection for w).
+
+:func:`landmark_weights` combines the criteria of a method for every hypothesis and
+:func:`landmark_subsets` draws the subsets; the tracker step calls the latter.
 """
 
 from __future__ import annotations
@@ -25,18 +28,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, PRNGKeyArray
 
-from ._body import KEYPOINT_PARENTS as _PARENTS_WITH_ROOT
+from ._body import BodyShape
 from ._camera import Intrinsics, project
+from ._config import TrackerConfig
+from ._geometry import GEOMETRY_PARTNER, part_radii, partner_rest_lengths
 from ._observe import Landmarks
 
 L_2D = 0.33
 """The paper's l: ``w = l W + (1 - l)``, so about 1 in 3 excluded 3D landmarks also loses its
 2D one."""
-
-#: Partner keypoint of each keypoint for the geometric test: its skeleton parent; the neck, whose
-#: parent is the hips' midpoint, is paired with the right hip (the neck-hip distance is rigid in
-#: the model too). Every pair lies on one rigid part of the model, so its length is constant.
-GEOMETRY_PARTNER = tuple(8 if p < 0 else p for p in _PARENTS_WITH_ROOT)
 
 _LINE_SAMPLES = np.linspace(0.2, 0.8, 4)
 
@@ -147,3 +147,91 @@ def sample_subset(
     keys = jnp.where(w > 0, jnp.log(safe) + jax.random.gumbel(key, w.shape, w.dtype), -jnp.inf)
     rank = jnp.argsort(jnp.argsort(-keys))
     return (rank < count) & (w > 0)
+
+
+def landmark_weights(
+    config: TrackerConfig,
+    shape: BodyShape,
+    intrinsics: Intrinsics,
+    depth: Float[Array, "H W"],
+    landmarks: Landmarks,
+    previous: Float[Array, "hyp kpt 3"],
+) -> tuple[Float[Array, "hyp kpt"], Float[Array, "hyp kpt"]]:
+    """The selection weights (W, w) of every hypothesis for ``config.method`` (section 2.2).
+
+    MHT_r: ``W = W^r``; MHT_g adds W^g; MHT_h adds W^h; combined by min. With
+    ``config.temporal_2d`` (not in the paper), a 2D-only landmark (detected, no depth) also
+    gets a temporal 2D weight from its reprojection distance (:func:`temporal_distance`); the
+    paper leaves it at 1. LVM is not weighted (all ones).
+
+    Args:
+        config: the method and its sigmas (traced).
+        shape: body dimensions (rest lengths, part radii).
+        intrinsics: the camera of ``depth`` and the keypoints.
+        depth: (H, W) observed depth, metres.
+        landmarks: this frame's lifted landmarks.
+        previous: (hyp, kpt, 3) each hypothesis' model keypoints at the previous frame, metres.
+
+    Returns:
+        (W, w), each (hyp, kpt) in [0, 1], before zeroing what is unavailable.
+    """
+    N = previous.shape[0]
+    F = landmarks.has_depth
+    dtype = landmarks.points3d.dtype
+    W = jnp.full((N, 18), 1.0 - config.R, dtype)
+    w = jnp.full((N, 18), 1.0 - config.r, dtype)
+    if config.method in ("mht_g", "mht_h"):
+        partner = np.asarray(GEOMETRY_PARTNER, np.int32)
+        rest = partner_rest_lengths(shape)
+        radii = part_radii(shape)
+
+        def geom(prev):
+            # The partner is the observed landmark where it has depth, else this hypothesis'
+            # previous model keypoint.
+            pts = jnp.where(F[partner][:, None], landmarks.points3d[partner], prev[partner])
+            valid = jnp.ones((18,), bool)
+            return geometry_distance(landmarks, pts, valid, rest, radii, depth, intrinsics)
+
+        Wg = gaussian_weight(jax.vmap(geom)(previous), config.sigma_g)
+        W = jnp.minimum(W, Wg)
+        w = jnp.minimum(w, jnp.where(F, L_2D * Wg + (1 - L_2D), 1.0))
+    if config.method == "mht_h":
+        d3, d2 = jax.vmap(
+            lambda prev: temporal_distance(landmarks, prev, intrinsics, d_hmax=config.d_hmax)
+        )(previous)
+        Wh = gaussian_weight(d3, config.sigma_h)
+        W = jnp.minimum(W, Wh)
+        if config.temporal_2d:
+            w2_only = L_2D * gaussian_weight(d2, config.sigma_h) + (1 - L_2D)
+        else:
+            w2_only = jnp.ones_like(Wh)
+        w = jnp.minimum(w, jnp.where(F, L_2D * Wh + (1 - L_2D), w2_only))
+    if config.method == "lvm":
+        W, w = jnp.ones_like(W), jnp.ones_like(w)
+    return W, w
+
+
+def landmark_subsets(
+    config: TrackerConfig,
+    key: PRNGKeyArray,
+    shape: BodyShape,
+    intrinsics: Intrinsics,
+    depth: Float[Array, "H W"],
+    landmarks: Landmarks,
+    previous: Float[Array, "hyp kpt 3"],
+) -> tuple[Bool[Array, "hyp kpt"], Bool[Array, "hyp kpt"]]:
+    """(use3d, use2d) of every hypothesis: the MHT's landmark subsets, drawn by
+    :func:`sample_subset` from :func:`landmark_weights`; all landmarks for LVM.
+
+    Returns:
+        (use3d, use2d), each (hyp, kpt) boolean; ``use3d`` implies F_i, ``use2d`` implies f_i.
+    """
+    N = previous.shape[0]
+    F, f = landmarks.has_depth, landmarks.detected
+    if config.method == "lvm":
+        return jnp.broadcast_to(F, (N, 18)), jnp.broadcast_to(f, (N, 18))
+    W, w = landmark_weights(config, shape, intrinsics, depth, landmarks, previous)
+    keys = jax.random.split(key, (N, 2))
+    use3d = jax.vmap(sample_subset, in_axes=(0, 0, None))(keys[:, 0], W, F)
+    use2d = jax.vmap(sample_subset, in_axes=(0, 0, None))(keys[:, 1], w, f)
+    return use3d, use2d

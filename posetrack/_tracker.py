@@ -1,4 +1,4 @@
-"""The host-side tracker: input checks, body shape, (re-)initialisation, track loss, progress.
+"""The host-side tracker: input checks, body shape, (re-)initialisation, track loss.
 
 The per-frame math is :func:`posetrack._step.tracker_step`, one jitted call per frame. This
 module keeps what is naturally sequential and rare: estimating the body dimensions from the
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from functools import partial
 
 import jax
@@ -19,43 +19,43 @@ import numpy as np
 
 from . import _body as body
 from ._camera import Intrinsics
-from ._depthobs import fit_floor_plane
+from ._config import TrackerConfig
+from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._progress import Progress
-from ._step import (
-    LOST,
-    NO_FLOOR,
-    NO_OBSERVATION,
-    STATUS_NAMES,
-    TRACKED,
-    ConfigView,
-    FrameEstimate,
-    TrackerConfig,
-    TrackState,
-    _landmarks,
-    split_config,
-    tracker_step,
-)
+from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
 
+#: Frame status codes (also the strings written to files).
+TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
+STATUS_NAMES = ("tracked", "lost", "no_observation")
 
-# Module-level jitted functions: compiled once per (config, shapes) and shared by every Tracker.
-@partial(jax.jit, static_argnums=0)
-def _jit_step(static, tunables, shape, intrinsics, floor, state, depth, kp2d, conf):
-    config = ConfigView(static, tunables)
+#: ``progress(done, total, postfix)``: called after each frame by :meth:`Tracker.run`.
+ProgressCallback = Callable[[int, int, str], None]
+
+
+# Module-level jitted functions, compiled once per (static part of the config, shapes) and shared
+# by every Tracker. The config is an ordinary argument: its static fields are part of the pytree
+# structure (a change recompiles), its float fields are traced leaves (a change does not).
+@jax.jit
+def step(
+    config: TrackerConfig, shape, intrinsics, floor, state: TrackState, depth, kp2d, conf
+) -> tuple[TrackState, FrameEstimate]:
+    """:func:`~posetrack.tracker_step`, jitted, exactly as :meth:`Tracker.update` calls it."""
     return tracker_step(config, shape, intrinsics, floor, state, depth, kp2d, conf)
 
 
-@partial(jax.jit, static_argnums=0)
-def _jit_lift(static, tunables, shape, intrinsics, depth, kp2d, conf):
-    return _landmarks(ConfigView(static, tunables), shape, intrinsics, depth, kp2d, conf)
+@jax.jit
+def lift(config: TrackerConfig, shape, intrinsics, depth, kp2d, conf) -> Landmarks:
+    """The tracker's lifting (``tracker_landmarks``), jitted."""
+    return tracker_landmarks(config, shape, intrinsics, depth, kp2d, conf)
 
 
 @partial(jax.jit, static_argnums=0)
-def _jit_init_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks):
+def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks):
+    """The (re-)initialisation fit on all landmarks, jitted; returns (FitResult, keypoints)."""
     res = fit_pose(
         params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
     )
@@ -115,10 +115,25 @@ def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
     return (support * agreement).astype(np.float32)
 
 
-def _check_frame(
+def check_frame(
     intrinsics: Intrinsics, depth, keypoints2d, confidence, depth_scale: float, where: str
-):
-    """Validate one frame at the public boundary; returns float32 arrays (metres)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate one frame at the public boundary and convert it.
+
+    Args:
+        intrinsics: the depth camera (its image size is checked against ``depth``).
+        depth: (H, W) uint16 in sensor units, or float metres (0 / NaN invalid).
+        keypoints2d: (18, 2) COCO-18 pixels; confidence: (18,), 0 = missing.
+        depth_scale: sensor units per metre (uint16 depth only).
+        where: what to call the frame in error messages.
+
+    Returns:
+        ``(depth_m, keypoints2d, confidence)`` as float32 NumPy arrays; non-finite keypoints
+        become missing (confidence 0).
+
+    Raises:
+        ValueError: naming ``where``, the field and the offending shape or dtype.
+    """
     depth = np.asarray(depth)
     if depth.size == 0:
         raise ValueError(f"{where}: depth is empty (shape {depth.shape})")
@@ -187,7 +202,10 @@ class Tracker:
         if not (np.isfinite(depth_scale) and depth_scale > 0):
             raise ValueError(f"Tracker: depth_scale must be positive, got {depth_scale!r}")
         self.config = config or TrackerConfig()
-        self._split = split_config(self.config)
+        if not isinstance(self.config, TrackerConfig):
+            raise TypeError(
+                f"Tracker: config must be posetrack.TrackerConfig, got {type(self.config)}"
+            )
         self.intrinsics = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
         self.depth_scale = float(depth_scale)
         self.shape = (
@@ -208,7 +226,7 @@ class Tracker:
 
     def _lift(self, depth_m, kp, conf) -> Landmarks:
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
-        return _jit_lift(*self._split, shape, self.intrinsics, depth_m, kp, conf)
+        return lift(self.config, shape, self.intrinsics, depth_m, kp, conf)
 
     def estimate_shape(self, depths, keypoints2d, confidence) -> dict[str, float]:
         """Estimate the body dimensions from several frames and use them from now on.
@@ -218,7 +236,7 @@ class Tracker:
         pts, flags = [], []
         saved, self.shape = self.shape, None
         for i, (d, k, c) in enumerate(zip(depths, keypoints2d, confidence)):
-            d, k, c = _check_frame(self.intrinsics, d, k, c, self.depth_scale, f"frame {i}")
+            d, k, c = check_frame(self.intrinsics, d, k, c, self.depth_scale, f"frame {i}")
             lm = self._lift(d, k, c)
             pts.append(np.asarray(lm.points3d))
             flags.append(np.asarray(lm.has_depth))
@@ -256,7 +274,7 @@ class Tracker:
         if p0 is None:
             return False
         t0 = time.perf_counter()
-        res, kps = _jit_init_fit(
+        res, kps = initial_fit(
             self._init_settings, self.shape, self.intrinsics, jnp.asarray(p0, _DTYPE), lm
         )
         params = np.asarray(res.params)
@@ -304,14 +322,14 @@ class Tracker:
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels; ``confidence``: (18,), 0 = missing.
         """
-        depth_m, kp, conf = _check_frame(
+        depth_m, kp, conf = check_frame(
             self.intrinsics, depth, keypoints2d, confidence, self.depth_scale, "update"
         )
         if self._state is None and not self._initialize(depth_m, kp, conf):
             return None, NO_OBSERVATION
         t0 = time.perf_counter()
-        state, est = _jit_step(
-            *self._split, self.shape, self.intrinsics, self._floor, self._state, depth_m, kp, conf
+        state, est = step(
+            self.config, self.shape, self.intrinsics, self._floor, self._state, depth_m, kp, conf
         )
         jax.block_until_ready(est)
         dt = time.perf_counter() - t0
@@ -339,10 +357,20 @@ class Tracker:
         keypoints2d: Sequence | np.ndarray,
         confidence: Sequence | np.ndarray,
         *,
-        progress: bool = True,
-        label: str = "tracking",
+        progress: ProgressCallback | None = None,
     ) -> TrackResult:
-        """Track a whole sequence. ``depths`` may be any sequence (e.g. a lazy file reader)."""
+        """Track a whole sequence. ``depths`` may be any sequence (e.g. a lazy file reader).
+
+        ``progress(done, total, postfix)`` is called after every frame (``None``: silent); the
+        application layer's ``posetrack.app.ProgressBar("tracking")`` draws a bar from it.
+        """
+        if progress is False:
+            progress = None
+        if progress is not None and not callable(progress):
+            raise TypeError(
+                "run: progress must be a callable progress(done, total, postfix) or None, got "
+                f"{progress!r} (for a text bar: progress=posetrack.app.ProgressBar('tracking'))"
+            )
         T = len(depths)
         if len(keypoints2d) != T or len(confidence) != T:
             raise ValueError(
@@ -364,10 +392,11 @@ class Tracker:
         lm3 = np.zeros((T, 18, 3))
         has_d = np.zeros((T, 18), bool)
         det = np.zeros((T, 18), bool)
-        bar = Progress(range(T), label, enabled=progress)
-        for t in bar:
+        for t in range(T):
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
             status[t] = st
+            if progress is not None:
+                progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
             if est is None:
                 continue
             lm = est.landmarks
@@ -386,7 +415,6 @@ class Tracker:
             kp3[t] = np.asarray(est.keypoints3d)
             delta[t] = float(est.delta)
             conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
-            bar.postfix = f"delta {float(est.delta):.2f}"
         # Never NaN parameters: frames without an estimate take the nearest estimated pose.
         have = np.flatnonzero(np.isfinite(params).all(axis=1))
         if len(have):
@@ -420,23 +448,12 @@ def track(
     *,
     shape: body.BodyShape | None = None,
     seed: int = 0,
-    progress: bool = False,
+    progress: ProgressCallback | None = None,
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`)."""
     return Tracker(intrinsics, config, shape=shape, seed=seed).run(
         depths, keypoints2d, confidence, progress=progress
     )
-
-
-__all__ = [
-    "Tracker",
-    "TrackResult",
-    "track",
-    "keypoint_confidence",
-    "LOST",
-    "TRACKED",
-    "NO_OBSERVATION",
-]
 
 
 def lift_sequence(
@@ -453,15 +470,15 @@ def lift_sequence(
     Returns:
         (points3d (T, 18, 3) metres, has_depth (T, 18)); pass them to ``naive_lifting``.
     """
-    config = dataclasses.replace(config or TrackerConfig(), surface_offset=False)
+    config = (config or TrackerConfig()).replace(surface_offset=False)
     intr = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
     shape = body.BodyShape.default(_DTYPE)
     pts, flags = [], []
     for i in range(len(depths)):
-        d, k, c = _check_frame(
+        d, k, c = check_frame(
             intr, depths[i], keypoints2d[i], confidence[i], depth_scale, f"frame {i}"
         )
-        lm = _jit_lift(*split_config(config), shape, intr, d, k, c)
+        lm = lift(config, shape, intr, d, k, c)
         pts.append(np.asarray(lm.points3d))
         flags.append(np.asarray(lm.has_depth))
     return np.stack(pts), np.stack(flags)

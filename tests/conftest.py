@@ -11,7 +11,7 @@ from pathlib import Path
 import jax
 import pytest
 
-from posetrack._cli import _enable_compilation_cache
+from posetrack.app._cli import enable_compilation_cache
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
@@ -33,7 +33,7 @@ def pytest_configure(config):
     else:
         path = "off"
     os.environ["POSETRACK_CACHE_DIR"] = path
-    _enable_compilation_cache()  # what the command line does, now for every test
+    enable_compilation_cache()  # what the command line does, now for every test
 
 
 _DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from posetrack import io, synth
-from posetrack._cli import build_parser, main
+from posetrack.app._cli import build_parser, main
 
 ARGS = ("--frames", "3", "--width", "64", "--height", "48", "--motion", "wave", "--quiet")
 

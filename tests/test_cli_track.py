@@ -1,6 +1,6 @@
 """``posetrack track`` end to end on folders written by ``posetrack.synth.save``.
 
-The CLI runs in-process (``posetrack._cli.main``) so every run shares one JAX compilation:
+The CLI runs in-process (``posetrack.app.main``) so every run shares one JAX compilation:
 all runs here use the same image size (320x240) and tracker configuration.
 """
 
@@ -22,8 +22,8 @@ import pytest
 import posetrack
 from posetrack import _body as body
 from posetrack import io
-from posetrack._cli import main
-from posetrack._export import BVH_KEYPOINTS
+from posetrack.app._cli import main
+from posetrack.app._export import BVH_KEYPOINTS
 
 N_FRAMES = 16
 METHOD, HYPOTHESES = "mht_h", 2
@@ -448,7 +448,7 @@ def test_ctrl_c_while_writing_leaves_the_previous_output(cli, rec, tmp_path, mon
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("posetrack._export.write_overlay", interrupted)
+    monkeypatch.setattr("posetrack.app._export.write_overlay", interrupted)
     code, _, stderr = run_cli(*track_args(rec, out))
     assert code == 130 and "interrupted" in stderr
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import pathlib
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import require_data
 
 from posetrack._camera import Intrinsics
 from posetrack._depthobs import downsample_depth, fit_floor_plane, observation_maps
@@ -15,7 +14,6 @@ from posetrack._render import Capsules, render_depth
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-FREIBURG = pathlib.Path("/work/shared/data/rgbd-pose3d-freiburg-sample/depth.png")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -58,21 +56,22 @@ def test_downsample_all_invalid_gives_zero_not_nan():
 
 
 def test_sorting_network_sorts():
-    from posetrack._depthobs import _sort_last_axis
+    from posetrack._depthobs import sort_last_axis
 
     rng = np.random.default_rng(0)
     for n in (1, 2, 3, 5, 9, 16, 25, 32, 33):  # 33: falls back to jnp.sort
         x = rng.normal(size=(20, n)).astype(np.float32)
         x[rng.random(x.shape) < 0.2] = np.inf  # invalid pixels
         x[:, 0] = x[:, -1]  # ties
-        np.testing.assert_array_equal(np.asarray(_sort_last_axis(jnp.asarray(x))), np.sort(x, -1))
+        np.testing.assert_array_equal(np.asarray(sort_last_axis(jnp.asarray(x))), np.sort(x, -1))
 
 
-@pytest.mark.skipif(not FREIBURG.exists(), reason="real Kinect v2 frame not available")
 def test_downsample_real_kinect_frame():
     import imageio.v3 as iio
 
-    depth = iio.imread(FREIBURG).astype(np.float32) / 1000.0  # mm -> m, 1920x1080
+    # Read in place from the shared data folder (no licence: never copied); skips if absent.
+    path = require_data("rgbd-pose3d-freiburg-sample") / "depth.png"
+    depth = iio.imread(path).astype(np.float32) / 1000.0  # mm -> m, 1920x1080
     out = np.asarray(downsample_depth(jnp.asarray(depth), (9, 12)))
     assert out.shape == (120, 160)
     assert np.all(np.isfinite(out))

@@ -13,15 +13,15 @@ import pytest
 import posetrack
 from posetrack import _body as body
 from posetrack import io
-from posetrack._export import (
+from posetrack.app._export import (
     BVH_KEYPOINTS,
     DEFAULT_FPS,
     bvh_from_params,
     bvh_from_result,
     save_results,
 )
-from posetrack._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, write_video
-from posetrack._viz import GREEN, RED
+from posetrack.app._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, write_video
+from posetrack.app._viz import GREEN, RED
 
 N_FRAMES = 16
 # Same sequence size and configuration as test_cli_track.py: one JAX compilation per session.
@@ -173,7 +173,7 @@ def test_crash_in_bvh_writer_leaves_no_folder(result, seq, tmp_path, monkeypatch
     def broken(*args, **kwargs):
         raise RuntimeError("disk on fire")
 
-    monkeypatch.setattr("posetrack._export.write_bvh", broken)
+    monkeypatch.setattr("posetrack.app._export.write_bvh", broken)
     with pytest.raises(RuntimeError, match="disk on fire"):
         save(tmp_path / "out", result, seq)
     assert list(tmp_path.iterdir()) == []  # neither the folder nor a temporary one
@@ -187,7 +187,7 @@ def test_interrupt_keeps_the_previous_complete_output(result, seq, tmp_path, mon
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("posetrack._export.write_overlay", interrupted)
+    monkeypatch.setattr("posetrack.app._export.write_overlay", interrupted)
     with pytest.raises(KeyboardInterrupt):
         save(out, result, seq, fps=60.0)
     assert files_of(out) == before
@@ -240,7 +240,7 @@ def test_gif_fallback_has_every_frame_and_is_scaled(tmp_path):
 
 
 def test_gif_when_no_mp4_writer_opens(result, seq, tmp_path, monkeypatch):
-    monkeypatch.setattr("posetrack._overlay._Mp4Writer.ok", property(lambda self: False))
+    monkeypatch.setattr("posetrack.app._overlay._Mp4Writer.ok", property(lambda self: False))
     saved = save(tmp_path / "out", result, seq)
     assert saved.overlay == tmp_path / "out" / "overlay.gif"
     assert not (tmp_path / "out" / "overlay.mp4").exists()

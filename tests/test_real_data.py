@@ -25,8 +25,7 @@ import pytest
 from conftest import require_data
 
 import posetrack
-from posetrack import detect
-from posetrack._step import STATUS_NAMES, TRACKED
+from posetrack import STATUS_NAMES, TRACKED, detect
 
 SAMPLE = "rgbd-pose3d-freiburg-sample"
 

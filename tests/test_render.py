@@ -252,14 +252,14 @@ def test_arm_in_front_does_not_grow_in_depth_map(render):
 def test_depth_continuous_across_silhouette():
     # Per-capsule depth along a fine sweep of rays crossing a capsule's silhouette: no jumps
     # beyond what the sqrt shape of a tangent allows.
-    from posetrack._render import _capsule_fields, _prim_params
+    from posetrack._render import capsule_fields, capsule_params
 
     a, b, r = np.array([[0.1, -0.2, 3.0]]), np.array([[0.3, 0.4, 2.6]]), np.array([0.1])
-    p = _prim_params(as_caps(a, b, r))
+    p = capsule_params(as_caps(a, b, r))
     p = {k_: v[0] for k_, v in p.items()}
     for y0 in (-0.075, 0.03, 0.16):  # crossings near end a, on the cylinder, near end b
         x = jnp.linspace(-0.2, 0.3, 200001)
-        delta, z = _capsule_fields(x, jnp.full_like(x, y0), p)
+        delta, z = capsule_fields(x, jnp.full_like(x, y0), p)
         delta, z = np.asarray(delta), np.asarray(z)
         assert (delta < 0).any() and (delta > 0).any()
         # Steepest admissible jump: z ~ sqrt(R * miss) near a tangent, miss per step ~ 3 * dx.

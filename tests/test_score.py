@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from posetrack._camera import Intrinsics
-from posetrack._render import Capsules, render_depth
-from posetrack._score import delta, delta_batch, render_and_score
+from posetrack._render import Capsules, render_and_score, render_depth
+from posetrack._score import delta, delta_batch
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 

@@ -3,13 +3,13 @@ recompilation per frame, track status, and bad input at the public boundary."""
 
 import dataclasses
 
+import equinox as eqx
+import jax
 import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack import _tracker
-from posetrack._fit import FitSettings
-from posetrack._step import LOST, NO_OBSERVATION, TRACKED, TrackerConfig, split_config
+from posetrack import LOST, NO_OBSERVATION, TRACKED, FitSettings, TrackerConfig, _tracker
 
 
 @pytest.fixture(scope="module")
@@ -44,23 +44,39 @@ def test_estimated_body_is_the_subjects_size(seq, lvm_result):
     assert abs(float(shape.upper_arm) - truth["upper_arm"]) / truth["upper_arm"] < 0.12
 
 
-def test_no_recompilation_over_frames(seq):
+def test_no_recompilation_over_frames(seq, monkeypatch):
+    """``Tracker.update``'s jitted step traces once over 12 frames, and once more never: also
+    not for another configuration that differs only in its float (traced) fields."""
+    counted = eqx.debug.assert_max_traces(pt.tracker_step, max_traces=1)
+    monkeypatch.setattr(_tracker, "step", jax.jit(counted))
     config = pt.TrackerConfig.paper("mht_h", num_hypotheses=3)
     tracker = pt.Tracker(seq.intrinsics, config)
     tracker.estimate_shape(seq.depth[:5], seq.keypoints2d[:5], seq.confidence[:5])
-    tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
-    before = _tracker._jit_step._cache_size()
-    for t in range(1, 12):
+    for t in range(12):
         est, status = tracker.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
         assert est is not None and status in (TRACKED, LOST)
         assert est.deltas.shape == (3,)
-    assert _tracker._jit_step._cache_size() == before, "the tracker step recompiled during tracking"
-    # Tunables (exclusion ratios, sigmas, d_M, ...) are traced: a sweep reuses the compiled step.
-    other = dataclasses.replace(config, r=0.05, R=0.15, sigma_h=0.3, d_hmax=0.2, d_M=0.1)
+    assert eqx.debug.get_num_traces(counted) == 1
+    # Float fields (exclusion ratios, sigmas, d_M, ...) are traced: a sweep reuses the step
+    # (a second trace would raise inside assert_max_traces).
+    other = config.replace(r=0.05, R=0.15, sigma_h=0.3, d_hmax=0.2, d_M=0.1, lost_delta=0.5)
     tracker2 = pt.Tracker(seq.intrinsics, other, shape=tracker.shape)
     for t in range(3):
         tracker2.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
-    assert _tracker._jit_step._cache_size() == before, "changing a tunable recompiled the step"
+    assert eqx.debug.get_num_traces(counted) == 1
+
+
+def test_static_fields_are_declared_static():
+    """Switches, counts and sizes are pytree structure; the float fields are its leaves."""
+    config = TrackerConfig()
+    leaves = jax.tree.leaves(config)
+    assert all(isinstance(v, float) for v in leaves)
+    assert len(leaves) == 14
+    a, b = TrackerConfig(sigma_h=0.3), TrackerConfig(sigma_h=0.7)
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for static in (dict(num_hypotheses=3), dict(reseed=False), dict(score_width=80)):
+        assert jax.tree.structure(TrackerConfig(**static)) != jax.tree.structure(config)
+    assert TrackerConfig(r=0).r == 0.0 and isinstance(TrackerConfig(r=0).r, float)
 
 
 def test_frames_without_observation_hold_the_pose(seq):
@@ -123,8 +139,23 @@ def test_config_fit_default_depends_on_method():
     assert TrackerConfig(fit=FitSettings(max_steps=5)).fit == FitSettings(max_steps=5)
     assert TrackerConfig().fit.max_steps == 4
     assert TrackerConfig(method="lvm").fit.max_steps == FitSettings().max_steps
-    # split_config rebuilds the config: the resolved settings survive it.
-    static, _ = split_config(TrackerConfig(sigma_h=0.3))
-    assert static.fit == TrackerConfig().fit
+    # replace() rebuilds the config: the resolved settings survive it.
+    assert TrackerConfig(sigma_h=0.3).replace(r=0.1).fit == TrackerConfig().fit
     with pytest.raises(ValueError, match="TrackerConfig.fit"):
         TrackerConfig(fit="l2")
+
+
+def test_paper_config_is_the_paper_method_alone():
+    """``TrackerConfig.paper`` switches off every addition of this project; ``recommended``
+    keeps the paper's (N, r, R) with them on."""
+    for method, n in (("lvm", 1), ("mht_r", 20), ("mht_g", 5), ("mht_h", 5)):
+        paper, ours = TrackerConfig.paper(method), TrackerConfig.recommended(method)
+        assert paper.is_paper() and paper.n == n and paper.fit.residuals.loss == "l1"
+        assert not paper.surface_offset and not paper.temporal_2d and not paper.use_floor
+        assert not paper.reseed and not paper.consensus_refit and not paper.invalid_is_unknown
+        assert not ours.is_paper()
+        if method != "mht_h":
+            assert (ours.n, ours.r, ours.R) == (paper.n, paper.r, paper.R)
+    assert TrackerConfig.paper("mht_r").r == 0.05 and TrackerConfig.paper("mht_r").R == 0.15
+    assert TrackerConfig.paper("mht_h", num_hypotheses=3).n == 3
+    assert set(pt.BEYOND_THE_PAPER) <= set(TrackerConfig.__dataclass_fields__)

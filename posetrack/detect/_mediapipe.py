@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._progress import Progress
+from ..app import Progress
 from ._mapping import NUM_BLAZEPOSE, blazepose_to_coco18, check_crop
 
 INSTALL_HINT = 'pip install ".[detect]" (from a posetrack checkout)'

@@ -100,7 +100,7 @@ def contact_sheet(images: Sequence[np.ndarray], *, columns: int = 4, pad: int = 
 
 def write_png(path: str | Path, image: np.ndarray) -> None:
     """Write an RGB uint8 image as PNG (atomically: temp file, then rename)."""
-    from .io._atomic import atomic_write_bytes
+    from ..io import atomic_write_bytes
 
     ok, buf = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR))
     if not ok:
@@ -112,7 +112,7 @@ def write_gif(path: str | Path, images: Sequence[np.ndarray], *, fps: float = 10
     """Write an animated GIF (looping) with imageio, atomically."""
     import imageio.v3 as iio
 
-    from .io._atomic import atomic_write_bytes
+    from ..io import atomic_write_bytes
 
     data = iio.imwrite("<bytes>", np.stack(images), extension=".gif", duration=1000.0 / fps, loop=0)
     atomic_write_bytes(Path(path), data)

@@ -66,3 +66,33 @@ class Progress:
         extra = f" {self.postfix}" if self.postfix else ""
         self.stream.write(f"\r{self.label} {bar} {rate:6.1f} {self.unit}/s{extra}   ")
         self.stream.flush()
+
+
+class ProgressBar:
+    """A progress callback ``bar(done, total, postfix)`` that draws like :class:`Progress`.
+
+    Pass it where the core takes a callback
+    (``Tracker.run(..., progress=ProgressBar("tracking"))``):
+    the core never draws, the application layer does. The line ends when ``done == total``.
+    """
+
+    def __init__(self, label: str, *, unit: str = "frames", stream=None):
+        self.label = label
+        self.unit = unit
+        self.stream = stream or sys.stderr
+        self._start: float | None = None
+        self._last = 0.0
+
+    def __call__(self, done: int, total: int, postfix: str = "") -> None:
+        now = time.perf_counter()
+        if self._start is None:
+            self._start = now
+        if done < total and now - self._last < 0.1:
+            return
+        self._last = now
+        bar = Progress((), self.label, total=total, unit=self.unit, stream=self.stream)
+        bar.postfix = postfix
+        bar._draw(done, now - self._start)
+        if done >= total:
+            self.stream.write("\n")
+            self.stream.flush()

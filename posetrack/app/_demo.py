@@ -13,11 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._camera import project
+from .._camera import project
+from .._config import TrackerConfig
+from .._metrics import accuracy, naive_lifting
+from .._tracker import Tracker, TrackResult, lift_sequence
 from ._machine import machine_summary
-from ._metrics import accuracy, naive_lifting
-from ._step import TrackerConfig
-from ._tracker import Tracker, TrackResult, lift_sequence
+from ._progress import ProgressBar
 from ._viz import (
     GREEN,
     RED,
@@ -29,10 +30,6 @@ from ._viz import (
     write_gif,
     write_png,
 )
-
-
-def _machine() -> str:
-    return machine_summary()
 
 
 def _pictures(seq, result: TrackResult, *, every: int, label: str) -> list[np.ndarray]:
@@ -71,7 +68,7 @@ def run_demo(
     stream=sys.stdout,
 ) -> dict:
     """Run the demo; returns the numbers it printed (also written to ``out_dir/results.json``)."""
-    from . import synth
+    from .. import synth
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -88,10 +85,8 @@ def run_demo(
         for method in methods:
             config = TrackerConfig.recommended(method)
             tracker = Tracker(seq.intrinsics, config, seed=seed)
-            res = tracker.run(
-                seq.depth, seq.keypoints2d, seq.confidence, progress=progress,
-                label=f"{method:5s} occl {level}",
-            )  # fmt: skip
+            bar = ProgressBar(f"{method:5s} occl {level}") if progress else None
+            res = tracker.run(seq.depth, seq.keypoints2d, seq.confidence, progress=bar)
             acc = accuracy(res.keypoints3d, seq.joints3d)
             if naive is None:
                 plain = lift_sequence(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics)
@@ -114,28 +109,34 @@ def run_demo(
             if level == occlusion_levels[-1] and method == methods[-1]:
                 gif_frames = _pictures(seq, res, every=1, label=f"{method} occl {level}")
     header = (
-        f"{'occl':>4} {'method':>6} {'N':>3} {'D mean':>7} {'D std':>6} {'C50':>5} {'C100':>5} "
+        f"{'occl':>4} {'method':>6} {'N':>3} {'D mean':>7} {'D std':>6} {'est.':>5} {'C50':>5} "
+        f"{'C100':>5} "
         f"{'C150':>5} {'naive D':>8} {'ms/frame':>8} {'compile s':>9}"
     )
     lines = [
         f"posetrack demo: {frames} frames of '{motion}' per occlusion level, seed {seed}",
-        f"machine: {_machine()}",
-        "(D in mm over 13 body joints; C_j(d) = share of joints within d mm)",
+        f"machine: {machine_summary()}",
+        "(D in mm over 13 body joints, computed on the estimated ones; est. = share of joints "
+        "estimated; C_j(d) = share of joints within d mm)",
         header,
         "-" * len(header),
     ]
     for r in rows:
         lines.append(
             f"{r['occlusion']:>4} {r['method']:>6} {r['N']:>3} {r['D_mean_mm']:7.1f} "
-            f"{r['D_std_mm']:6.1f} {r['C_50mm']:5.2f} {r['C_100mm']:5.2f} {r['C_150mm']:5.2f} "
+            f"{r['D_std_mm']:6.1f} {r['coverage']:5.2f} {r['C_50mm']:5.2f} {r['C_100mm']:5.2f} "
+            f"{r['C_150mm']:5.2f} "
             f"{r['naive_D_mean_mm']:8.1f} {r['ms_per_frame']:8.1f} {r['compile_s']:9.1f}"
         )
     sheet = contact_sheet(pictures, columns=8)
     write_png(out / "contact_sheet.png", sheet)
     write_gif(out / "tracking.gif", gif_frames, fps=10)
-    from .io._atomic import atomic_write_text
+    from ..io import atomic_write_text
 
-    result = {"machine": _machine(), "frames": frames, "motion": motion, "seed": seed, "rows": rows}
+    result = {
+        "machine": machine_summary(), "frames": frames, "motion": motion, "seed": seed,
+        "rows": rows,
+    }  # fmt: skip
     atomic_write_text(out / "results.json", json.dumps(result, indent=2))
     lines.append("")
     lines.append(f"pictures: {out.resolve() / 'contact_sheet.png'} (green = truth, red = estimate)")

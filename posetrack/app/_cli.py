@@ -26,7 +26,7 @@ def _demo(args) -> int:
 
 
 def _generate(args) -> int:
-    from . import synth
+    from .. import synth
 
     if os.path.exists(args.out) and not args.overwrite:
         raise FileExistsError(
@@ -52,7 +52,7 @@ def _load_detector():
         f"bundled models), which cannot be loaded here{{}}; install it with: {_DETECT_INSTALL}"
     )
     try:
-        from . import detect
+        from .. import detect
     except ImportError as e:
         raise ValueError(missing.format(f" ({e})")) from None
     available = getattr(detect, "available", None)
@@ -81,10 +81,11 @@ def _detected(detect_keypoints, rgb, n: int, *, progress: bool):
 def _track(args) -> int:
     import numpy as np
 
-    from . import io
+    from .. import io
+    from .._config import TrackerConfig
+    from .._tracker import Tracker
     from ._export import check_output_dir, save_results, status_counts
-    from ._step import TrackerConfig
-    from ._tracker import Tracker
+    from ._progress import ProgressBar
 
     t_start = time.perf_counter()
     progress = not args.quiet
@@ -148,7 +149,8 @@ def _track(args) -> int:
         file=sys.stderr,
     )
     tracker = Tracker(rec.intrinsics, config, seed=args.seed)
-    result = tracker.run(rec.depth, kp2d, conf, progress=progress)
+    bar = ProgressBar("tracking") if progress else None
+    result = tracker.run(rec.depth, kp2d, conf, progress=bar)
     t_tracked = time.perf_counter()
 
     fps = args.fps if args.fps is not None else rec.fps
@@ -208,7 +210,7 @@ def _track(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .synth._motion import MOTIONS  # NumPy only: the help lists what generate accepts
+    from ..synth import MOTIONS  # NumPy only: the help lists what generate accepts
 
     p = argparse.ArgumentParser(
         prog="posetrack",
@@ -336,7 +338,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _enable_compilation_cache() -> None:
+def enable_compilation_cache() -> None:
     """Keep JAX's compiled tracker steps on disk between runs (tens of seconds saved per run).
 
     ``POSETRACK_CACHE_DIR`` chooses the folder (default ``~/.cache/posetrack/jax``); ``off``
@@ -361,7 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 1 system error, 2 bad input,
     130 interrupted)."""
     args = build_parser().parse_args(argv)
-    _enable_compilation_cache()
+    enable_compilation_cache()
     if os.environ.get("POSETRACK_TRACEBACK"):
         return args.func(args)
     try:

@@ -25,12 +25,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import _body as body
-from ._camera import Intrinsics
+from .. import _body as body
+from .._camera import Intrinsics
+from .._tracker import STATUS_NAMES, TrackResult
+from ..io import MARKER_NAME, atomic_dir, write_bvh, write_easymocap, write_poses_npz
 from ._overlay import write_overlay
-from ._step import STATUS_NAMES
-from ._tracker import TrackResult
-from .io import MARKER_NAME, atomic_dir, write_bvh, write_easymocap, write_poses_npz
 
 DEFAULT_FPS = 30.0
 """Frame rate assumed for the BVH and the video when the recording does not say (a folder

@@ -21,9 +21,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ._camera import Intrinsics
+from .._camera import Intrinsics
+from .._tracker import STATUS_NAMES
 from ._progress import Progress
-from ._step import STATUS_NAMES
 from ._viz import CYAN, GREEN, RED, colorize_depth, draw_skeleton, put_label, write_gif
 
 GREY = (170, 170, 170)
