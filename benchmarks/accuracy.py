@@ -26,11 +26,8 @@ from pathlib import Path
 import numpy as np
 
 import posetrack as pt
-from posetrack._demo import _machine
-from posetrack._fit import FitSettings
-from posetrack._residuals import ResidualSettings
-from posetrack._tracker import lift_sequence
-from posetrack._viz import line_plot, write_png
+from posetrack import lift_sequence
+from posetrack.app import line_plot, machine_summary, write_png
 
 PROCEDURAL = ("walk", "box", "wave", "reach", "squat", "turn")
 REAL = (
@@ -50,29 +47,44 @@ TABLE1_GRID = (
 
 
 def methods(quick: bool) -> dict[str, pt.TrackerConfig]:
-    """Table 2's rows: the paper's best setting of each method (library defaults for the
-    sigmas), the paper's MHT_h without our additions, with them (N = 5), our MHT_h as shipped
-    (N = 10), and (full run only) the optional dense refinement on top of LVM and MHT_h."""
-    paper_h = pt.TrackerConfig.paper("mht_h", reseed=False, consensus_refit=False)
+    """Table 2's rows.
+
+    * ``... (paper)``: the paper's method alone at its best setting (its Table 2):
+      ``TrackerConfig.paper(method)``, every addition of this project off;
+    * ``LVM``, ``MHT_r``, ``MHT_g``: the same (N, r, R) with our additions
+      (``TrackerConfig.recommended``: surface offset, unknown invalid depth, floor removal,
+      2D temporal weight, reseeding, consensus refit);
+    * ``MHT_h N=5`` and ``MHT_h``: what we ship, with the paper's N = 5 and with N = 10;
+    * (full run only) the optional dense refinement on top of LVM and MHT_h.
+    """
     rows = {
-        "LVM": pt.TrackerConfig.paper("lvm"),
-        "MHT_r": pt.TrackerConfig.paper("mht_r"),
-        "MHT_g": pt.TrackerConfig.paper("mht_g"),
-        "MHT_h (paper)": paper_h,
-        "MHT_h N=5": pt.TrackerConfig.paper("mht_h"),
+        "LVM (paper)": pt.TrackerConfig.paper("lvm"),
+        "MHT_r (paper)": pt.TrackerConfig.paper("mht_r"),
+        "MHT_g (paper)": pt.TrackerConfig.paper("mht_g"),
+        "MHT_h (paper)": pt.TrackerConfig.paper("mht_h"),
+        "LVM": pt.TrackerConfig.recommended("lvm"),
+        "MHT_r": pt.TrackerConfig.recommended("mht_r"),
+        "MHT_g": pt.TrackerConfig.recommended("mht_g"),
+        "MHT_h N=5": pt.TrackerConfig.recommended("mht_h", num_hypotheses=5),
         "MHT_h": pt.TrackerConfig(),
-        # The shipped default before the reseed margin went from 0.05 to 0.15.
-        "MHT_h margin 0.05": pt.TrackerConfig(reseed_margin=0.05),
-        # The shipped MHT_h before the speed tuning of benchmarks/README.md (soft-rendered
-        # scoring, 12 LM steps): the tuning must not cost accuracy.
-        "MHT_h untuned": pt.TrackerConfig(
-            hard_scoring=False, fit=FitSettings(max_steps=12, residuals=ResidualSettings("l2"))
-        ),
     }
     if not quick:
-        rows["LVM +refine"] = pt.TrackerConfig.paper("lvm", refine_steps=3, refine_weight=1.0)
+        rows["LVM +refine"] = pt.TrackerConfig.recommended(
+            "lvm", refine_steps=3, refine_weight=1.0
+        )
         rows["MHT_h +refine"] = pt.TrackerConfig(refine_steps=3, refine_weight=1.0)
     return rows
+
+
+#: Which LVM row each row's gain is measured against: the paper's method against the paper's
+#: baseline, ours against LVM with the same additions (like for like).
+BASELINE = {
+    "LVM (paper)": "LVM (paper)", "MHT_r (paper)": "LVM (paper)", "MHT_g (paper)": "LVM (paper)",
+    "MHT_h (paper)": "LVM (paper)", "naive": "LVM (paper)",
+}  # fmt: skip
+
+#: Table 1 is the paper's experiment: its methods alone over the (r, R) grid.
+TABLE1_METHODS = ("MHT_r (paper)", "MHT_g (paper)", "MHT_h (paper)")
 
 
 def sequences(quick: bool) -> list[tuple[str, int]]:
@@ -107,7 +119,7 @@ def run(args) -> dict:
             plain = lift_sequence(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics)
             naive = pt.naive_lifting(*plain)
             acc = pt.accuracy(naive, seq.joints3d)
-            errors["naive"].append(pt._metrics.joint_errors(naive, seq.joints3d))
+            errors["naive"].append(pt.joint_errors(naive, seq.joints3d))
             records.append(
                 {"motion": motion, "seed": seed, "level": level, "method": "naive", **acc.row()}
             )
@@ -117,16 +129,16 @@ def run(args) -> dict:
                     seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, cfg, seed=seed
                 )
                 acc = pt.accuracy(res.keypoints3d, seq.joints3d)
-                errors[name].append(pt._metrics.joint_errors(res.keypoints3d, seq.joints3d))
+                errors[name].append(pt.joint_errors(res.keypoints3d, seq.joints3d))
                 records.append({"motion": motion, "seed": seed, "level": level, "method": name,
                                 **acc.row(), "ms_per_frame": res.ms_per_frame})  # fmt: skip
                 line.append(f"{name} {acc.mean_mm:.0f}")
             if level == args.table1_level:
-                for name in ("MHT_r", "MHT_g", "MHT_h"):
+                for name in TABLE1_METHODS:
                     for r, R in TABLE1_GRID:
-                        if name == "MHT_r" and r == 0 and R == 0:
+                        if name.startswith("MHT_r") and r == 0 and R == 0:
                             continue  # all landmarks, identical hypotheses: LVM (N/A in the paper)
-                        cfg = dataclasses.replace(configs[name], r=r, R=R)
+                        cfg = configs[name].replace(r=r, R=R)
                         res = pt.track(
                             seq.depth,
                             seq.keypoints2d,
@@ -135,9 +147,10 @@ def run(args) -> dict:
                             cfg,
                             seed=seed,
                         )
-                        d_mm = pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm
+                        acc1 = pt.accuracy(res.keypoints3d, seq.joints3d)
                         table1.append({"motion": motion, "seed": seed, "method": name,
-                                       "r": r, "R": R, "D_mean_mm": d_mm})  # fmt: skip
+                                       "r": r, "R": R, "D_mean_mm": acc1.mean_mm,
+                                       "coverage": acc1.coverage})  # fmt: skip
             print(" | ".join(line) + f"  [{time.perf_counter() - t0:.0f}s]", flush=True)
 
     names = [*configs, "naive"]
@@ -151,6 +164,14 @@ def run(args) -> dict:
     def std_of(method):
         return float(np.mean([r["D_std_mm"] for r in records if r["method"] == method]))
 
+    def coverage_of(method, level=None, min_level=None):
+        """Share of (frame, joint) pairs estimated: D skips the others, so a method that
+        gives up on frames would look better by D alone."""
+        vals = [r["coverage"] for r in records if r["method"] == method
+                and (level is None or r["level"] == level)
+                and (min_level is None or r["level"] >= min_level)]  # fmt: skip
+        return float(np.mean(vals)) if vals else float("nan")
+
     summary = {
         "table2": {
             m: {
@@ -158,10 +179,14 @@ def run(args) -> dict:
                 "D_std_mm": std_of(m),
                 "D_clean_mm": mean_of(m, level=0),
                 "D_occluded_mm": mean_of(m, min_level=1),
+                "coverage": coverage_of(m),
+                "coverage_clean": coverage_of(m, level=0),
+                "coverage_occluded": coverage_of(m, min_level=1),
             }
             for m in names
         },  # fmt: skip
         "fig5": {m: {lv: mean_of(m, level=lv) for lv in levels} for m in names},
+        "fig5_coverage": {m: {lv: coverage_of(m, level=lv) for lv in levels} for m in names},
         "fig3": {
             m: [
                 float(
@@ -176,34 +201,37 @@ def run(args) -> dict:
             for m in names
         },  # fmt: skip
     }
-    t1 = {}
+    t1, t1_cov = {}, {}
     for row in table1:
-        t1.setdefault((row["r"], row["R"]), {}).setdefault(row["method"], []).append(
-            row["D_mean_mm"]
-        )
+        key = (row["r"], row["R"])
+        t1.setdefault(key, {}).setdefault(row["method"], []).append(row["D_mean_mm"])
+        t1_cov.setdefault(key, {}).setdefault(row["method"], []).append(row["coverage"])
     summary["table1"] = [
-        {"r": r, "R": R, **{m: float(np.mean(v)) for m, v in d.items()}}
+        {"r": r, "R": R, **{m: float(np.mean(v)) for m, v in d.items()},
+         "coverage": {m: float(np.mean(v)) for m, v in t1_cov[(r, R)].items()}}
         for (r, R), d in sorted(t1.items())
-    ]
-    lvm_occ = summary["table2"]["LVM"]["D_occluded_mm"]
-    lvm_clean = summary["table2"]["LVM"]["D_clean_mm"]
+    ]  # fmt: skip
     for m in names:
         s = summary["table2"][m]
-        s["gain_vs_LVM_occluded"] = 1 - s["D_occluded_mm"] / lvm_occ
-        s["gain_vs_LVM_clean"] = 1 - s["D_clean_mm"] / lvm_clean
+        base = summary["table2"][BASELINE.get(m, "LVM")]
+        s["baseline"] = BASELINE.get(m, "LVM")
+        s["gain_vs_LVM_occluded"] = 1 - s["D_occluded_mm"] / base["D_occluded_mm"]
+        s["gain_vs_LVM_clean"] = 1 - s["D_clean_mm"] / base["D_clean_mm"]
 
     # -- print ----------------------------------------------------------------------------
-    print(f"\nmachine: {_machine()}; {len(seqs)} sequences x {len(levels)} occlusion levels, "
+    print(f"\nmachine: {machine_summary()}; {len(seqs)} sequences x {len(levels)} "
+          f"occlusion levels, "
           f"{args.frames} frames each; {time.perf_counter() - t_start:.0f} s")  # fmt: skip
 
     # -- write ----------------------------------------------------------------------------
     write_figures(summary, levels, out)
-    result = {"machine": _machine(), "frames": args.frames, "levels": list(levels),
+    result = {"machine": machine_summary(), "frames": args.frames, "levels": list(levels),
               "table1_level": args.table1_level, "seconds": time.perf_counter() - t_start,
               "sequences": [{"motion": m, "seed": s} for m, s in seqs],
               "configs": {m: dataclasses.asdict(c) for m, c in configs.items()},
+              "paper_only": {m: c.is_paper() for m, c in configs.items()},
               "summary": summary, "records": records, "table1_records": table1}  # fmt: skip
-    from posetrack.io._atomic import atomic_write_text
+    from posetrack.io import atomic_write_text
 
     print("\n" + markdown_tables(result))
     atomic_write_text(out / "results.json", json.dumps(result, indent=1, default=str))
@@ -217,52 +245,73 @@ CURVES_D = np.arange(0, 301, 10)
 
 # What each Table 2 row is, for the Markdown tables (rows not listed print without a setting).
 SETTINGS = {
-    "LVM": "LM on all landmarks (the paper's baseline)",
-    "MHT_r": "paper's best: N=20, r=0.05, R=0.15",
-    "MHT_g": "paper's best: N=5, r=0.05, R=0.15",
-    "MHT_h (paper)": "paper's best: N=5, r=R=0, without our reseed/consensus",
-    "MHT_h N=5": "the paper's MHT_h with our reseed/consensus",
-    "MHT_h": "**shipped default**: N=10, our additions, l2 loss, 4 LM steps",
-    "MHT_h margin 0.05": "shipped, but reseed margin 0.05 (the previous default)",
-    "MHT_h untuned": "shipped, before the speed tuning (soft scoring, 12 LM steps)",
+    "LVM (paper)": "the paper's baseline alone: LM on all landmarks, sum of norms",
+    "MHT_r (paper)": "the paper's method alone, its best: N=20, r=0.05, R=0.15",
+    "MHT_g (paper)": "the paper's method alone, its best: N=5, r=0.05, R=0.15",
+    "MHT_h (paper)": "the paper's method alone, its best: N=5, r=R=0",
+    "LVM": "LVM with our observation additions (surface offset, unknown depth, floor)",
+    "MHT_r": "N=20, r=0.05, R=0.15 with all our additions",
+    "MHT_g": "N=5, r=0.05, R=0.15 with all our additions",
+    "MHT_h N=5": "shipped MHT_h with the paper's N=5",
+    "MHT_h": "**shipped default**: N=10, all our additions, l2 loss, 4 LM steps",
     "LVM +refine": "LVM + dense refinement (3 steps)",
     "MHT_h +refine": "shipped + dense refinement (3 steps)",
     "naive": "each keypoint at its own depth (no model)",
 }
 
 
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f} %"
+
+
 def markdown_tables(saved: dict) -> str:
-    """Table 2, Fig. 5 and Table 1 of a saved ``results.json`` as Markdown (for the READMEs)."""
+    """Table 2, Fig. 5 and Table 1 of a saved ``results.json`` as Markdown (for the READMEs).
+
+    Every table shows the share of joints estimated beside D: D skips unestimated joints, so a
+    method that gives up would look better by D alone."""
     summary, levels = saved["summary"], saved["levels"]
     t2, fig5 = summary["table2"], summary["fig5"]
+    cov5 = summary.get("fig5_coverage", {})
     lines = [
         "**Table 2** (D in mm: mean over sequences of the per-sequence mean; std = mean of the "
-        "per-sequence std over frames; gain = reduction of D against LVM):",
+        "per-sequence std over frames; est. = share of (frame, joint) pairs estimated, which D "
+        "is computed on; gain = reduction of D against the baseline named):",
         "",
-        "| method | setting | D mean | D std | clean (level 0) | occluded (levels 1-4) "
-        "| gain occluded | gain clean |",
-        "|---|---|---|---|---|---|---|---|",
+        "| method | setting | D mean | D std | est. | clean (level 0) | occluded (levels 1-4) "
+        "| baseline | gain occluded | gain clean |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for m, s in t2.items():
         lines.append(
             f"| {m} | {SETTINGS.get(m, '')} | {s['D_mean_mm']:.1f} | {s['D_std_mm']:.1f} "
-            f"| {s['D_clean_mm']:.1f} | {s['D_occluded_mm']:.1f} "
-            f"| {100 * s['gain_vs_LVM_occluded']:.1f} % | {100 * s['gain_vs_LVM_clean']:.1f} % |"
+            f"| {_pct(s.get('coverage', float('nan')))} "
+            f"| {s['D_clean_mm']:.1f} | {s['D_occluded_mm']:.1f} | {s.get('baseline', 'LVM')} "
+            f"| {_pct(s['gain_vs_LVM_occluded'])} | {_pct(s['gain_vs_LVM_clean'])} |"
         )
     head = " | ".join(f"level {lv}" for lv in levels)
-    lines += ["", "**Fig. 5**: D (mm) per occlusion level", "",
+    lines += ["", "**Fig. 5**: D (mm) per occlusion level (share of joints estimated)", "",
               f"| method | {head} | level {levels[-1]} / level {levels[0]} |",
               "|---|" + "---|" * (len(levels) + 1)]  # fmt: skip
     for m, row in fig5.items():
         vals = [row[str(lv)] if str(lv) in row else row[lv] for lv in levels]
-        lines.append(f"| {m} | " + " | ".join(f"{v:.1f}" for v in vals)
-                     + f" | {vals[-1] / vals[0]:.2f} |")  # fmt: skip
+        crow = cov5.get(m, {})
+        covs = [crow.get(str(lv), crow.get(lv, float("nan"))) for lv in levels]
+        cells = [f"{v:.1f} ({100 * c:.0f} %)" for v, c in zip(vals, covs)]
+        lines.append(f"| {m} | " + " | ".join(cells) + f" | {vals[-1] / vals[0]:.2f} |")
+    t1_names = [m for m in TABLE1_METHODS if any(m in row for row in summary["table1"])]
     lines += ["", f"**Table 1**: D (mm) over the (r, R) grid at occlusion level "
-              f"{saved.get('table1_level', 2)} (MHT_r N=20, MHT_g N=5, MHT_h as shipped, N=10; "
-              "N/A: r = R = 0 makes MHT_r's hypotheses identical, i.e. LVM)", "",
-              "| r | R | MHT_r | MHT_g | MHT_h |", "|---|---|---|---|---|"]  # fmt: skip
+              f"{saved.get('table1_level', 2)}, the paper's methods alone (MHT_r N=20, MHT_g N=5, "
+              "MHT_h N=5), with the share of joints estimated; N/A: r = R = 0 makes MHT_r's "
+              "hypotheses identical, i.e. LVM", "",
+              "| r | R | " + " | ".join(t1_names) + " |",
+              "|---|---|" + "---|" * len(t1_names)]  # fmt: skip
     for row in summary["table1"]:
-        cells = [f"{row[m]:.1f}" if m in row else "N/A" for m in ("MHT_r", "MHT_g", "MHT_h")]
+        cov = row.get("coverage", {})
+        cells = [
+            f"{row[m]:.1f} ({100 * cov[m]:.0f} %)" if m in row and m in cov
+            else (f"{row[m]:.1f}" if m in row else "N/A")
+            for m in t1_names
+        ]  # fmt: skip
         lines.append(f"| {row['r']:.2f} | {row['R']:.2f} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
