@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._so3 import rx, ry, rz
+from posetrack._so3 import rx, ry, rz
 
 _ROT = {"Xrotation": rx, "Yrotation": ry, "Zrotation": rz}
 _POS = {"Xposition": 0, "Yposition": 1, "Zposition": 2}

@@ -19,22 +19,23 @@ from typing import Any
 
 import numpy as np
 
-from ._bvh import bvh_forward_kinematics, read_bvh
-from ._motion import MotionClip, ground
-from ._skeleton import SEG, SEGMENTS, Subject
-from ._so3 import (
+from posetrack._so3 import (
     align_two,
     axis_angle,
     frame_from_axes,
-    from_quat,
     hemisphere_align,
+    matrix_to_quat,
     min_rotation,
     normalize,
+    quat_to_matrix,
     ry,
     rz,
     slerp,
-    to_quat,
 )
+
+from ._bvh import bvh_forward_kinematics, read_bvh
+from ._motion import MotionClip, ground
+from ._skeleton import SEG, SEGMENTS, Subject
 
 CMU_UNIT_M = 0.056444
 """One CMU BVH length unit in metres (README of cmu-mocap-bvh-subject131)."""
@@ -301,8 +302,8 @@ def retarget(markers: dict[str, np.ndarray], subject: Subject, *, level_feet: bo
     R[:, SEG["chest"]] = frame_from_axes(m["neck"] - m["spine"],
                                          m["shoulder_l"] - m["shoulder_r"],
                                          primary_axis=1, hint_axis=0)
-    qp, qc = to_quat(R[:, SEG["pelvis"]]), to_quat(R[:, SEG["chest"]])
-    R[:, SEG["abdomen"]] = from_quat(slerp(qp, qc, np.full(N, 0.5)))
+    qp, qc = matrix_to_quat(R[:, SEG["pelvis"]]), matrix_to_quat(R[:, SEG["chest"]])
+    R[:, SEG["abdomen"]] = quat_to_matrix(slerp(qp, qc, np.full(N, 0.5)))
     Rc = R[:, SEG["chest"]]
     head_base = m.get("head_base", m["head"])
     neck_dir = head_base - m["neck"]
@@ -376,21 +377,21 @@ def retarget(markers: dict[str, np.ndarray], subject: Subject, *, level_feet: bo
 
 def _resample_rotations(R: np.ndarray, src_fps: float, times: np.ndarray) -> np.ndarray:
     """Slerp (N, S, 3, 3) rotations sampled at ``src_fps`` to arbitrary ``times`` (s)."""
-    q = hemisphere_align(to_quat(R), axis=0)
+    q = hemisphere_align(matrix_to_quat(R), axis=0)
     x = times * src_fps
     i0 = np.clip(np.floor(x).astype(int), 0, R.shape[0] - 1)
     i1 = np.clip(i0 + 1, 0, R.shape[0] - 1)
     f = np.clip(x - i0, 0.0, 1.0)
     qi = slerp(q[i0], q[i1], np.broadcast_to(f[:, None], q[i0].shape[:-1]))
-    return from_quat(qi)
+    return quat_to_matrix(qi)
 
 
 def _smooth_rotations(R: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of rotations over time (on sign-aligned quaternions)."""
     if sigma <= 0:
         return R
-    q = hemisphere_align(to_quat(R), axis=0)
-    return from_quat(_gauss_smooth(q, sigma))
+    q = hemisphere_align(matrix_to_quat(R), axis=0)
+    return quat_to_matrix(_gauss_smooth(q, sigma))
 
 
 def real_motion(name: str, subject: Subject, *, n_frames: int, fps: float,
