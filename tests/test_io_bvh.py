@@ -3,14 +3,10 @@
 import numpy as np
 import pytest
 from conftest import require_data
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from posetrack.io import (
     InputError,
     bvh_forward_kinematics,
-    matrix_to_euler_zyx,
-    quaternion_to_matrix,
     read_bvh,
     write_bvh,
 )
@@ -134,27 +130,6 @@ def test_euler_angles_are_unwrapped_over_time(tmp_path):
     )  # fmt: skip
     z = read_bvh(path).motion[:, 3]
     assert np.max(np.abs(np.diff(z))) < 20 and z[-1] == pytest.approx(720.0, abs=1e-4)
-
-
-unit_quaternions = st.lists(
-    st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4
-).filter(lambda q: np.linalg.norm(q) > 1e-3)
-
-
-@settings(max_examples=200, deadline=None)
-@given(q=unit_quaternions, near_lock=st.booleans(), sign=st.sampled_from([1.0, -1.0]))
-def test_matrix_to_euler_zyx_reconstructs_the_rotation(q, near_lock, sign):
-    q = np.asarray(q) * sign
-    if near_lock:  # push the rotation onto (or next to) y = +-90 deg
-        q = qmul(axis_angle_quat([0, 1, 0], np.pi / 2), q * np.array([1, 1, 1e-9, 1]))
-    R = quaternion_to_matrix(q)
-    z, y, x = matrix_to_euler_zyx(R)
-    cz, sz, cy, sy, cx, sx = np.cos(z), np.sin(z), np.cos(y), np.sin(y), np.cos(x), np.sin(x)
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    np.testing.assert_allclose(Rz @ Ry @ Rx, R, atol=1e-12)
-    np.testing.assert_allclose(quaternion_to_matrix(-q), R, atol=1e-15)
 
 
 def test_write_bvh_rejects_bad_arguments(tmp_path):

@@ -12,8 +12,6 @@ from ._atomic import atomic_write_bytes as atomic_write_bytes
 from ._atomic import atomic_write_text as atomic_write_text
 from ._bvh import Bvh as Bvh
 from ._bvh import bvh_forward_kinematics as bvh_forward_kinematics
-from ._bvh import matrix_to_euler_zyx as matrix_to_euler_zyx
-from ._bvh import quaternion_to_matrix as quaternion_to_matrix
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
 from ._depth import DepthSequence as DepthSequence
@@ -64,9 +62,7 @@ __all__ = [
     "frame_number",
     "list_frames",
     "load_recording",
-    "matrix_to_euler_zyx",
     "probe_depth_png",
-    "quaternion_to_matrix",
     "read_bvh",
     "read_depth",
     "read_intrinsics_json",
