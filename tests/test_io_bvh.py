@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 from conftest import require_data
 
+from posetrack._so3 import rx, rz
 from posetrack.io import (
     InputError,
     bvh_forward_kinematics,
+    bvh_world_transforms,
     read_bvh,
     write_bvh,
 )
@@ -189,3 +191,68 @@ def test_reads_a_real_cmu_file():
     lengths = np.linalg.norm(positions[:, child] - positions[:, bvh.parents[child]], axis=-1)
     np.testing.assert_allclose(lengths, np.broadcast_to(lengths[0], lengths.shape), atol=1e-9)
     np.testing.assert_allclose(lengths[0], np.linalg.norm(bvh.offsets[child], axis=-1), atol=1e-9)
+
+
+TINY_BVH = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+  JOINT Chest
+  {
+    OFFSET 0 2 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 0 3
+    }
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.5
+1 2 3 0 0 0 0 0 0
+0 0 0 90 0 0 0 90 0
+0 0 0 0 0 0 90 90 0
+"""
+
+
+def test_hand_written_file_per_joint_channel_order_end_site_and_scale(tmp_path):
+    path = tmp_path / "tiny.bvh"
+    path.write_text(TINY_BVH)
+    bvh = read_bvh(path)
+    assert bvh.names == ("Hips", "Chest") and list(bvh.parents) == [-1, 0]
+    assert bvh.frame_time == 0.5 and bvh.motion.shape == (3, 9)
+    assert bvh.channels[1] == ("Zrotation", "Xrotation", "Yrotation")
+    np.testing.assert_array_equal(bvh.end_sites[1], [0, 0, 3])
+    pos, rot = bvh_world_transforms(bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=2.0)
+    np.testing.assert_array_equal(
+        pos, bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=2.0)
+    )
+    end = pos[:, 1] + np.einsum("tij,j->ti", rot[:, 1], 2.0 * bvh.end_sites[1])
+    # Frame 0: pure translation (scaled).
+    np.testing.assert_allclose(pos[0], [[2, 4, 6], [2, 8, 6]], atol=1e-12)
+    np.testing.assert_allclose(end[0], [2, 8, 12], atol=1e-12)
+    # Frame 1: root Zrot 90 turns the chest offset to -x; chest Xrot 90 then root Zrot 90
+    # take the end offset (0, 0, 3) to (0, -3, 0) and then (3, 0, 0).
+    np.testing.assert_allclose(pos[1], [[0, 0, 0], [-4, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(end[1], [2, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(rot[1, 1], rz(np.pi / 2) @ rx(np.pi / 2), atol=1e-12)
+    # Frame 2: channel order Z X Y means R = Rz @ Rx (reversed order would give (0, -1, 0)).
+    np.testing.assert_allclose(end[2], [6, 4, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "edit,match",
+    [
+        (lambda t: t.replace("HIERARCHY\n", ""), "HIERARCHY"),
+        (lambda t: t.replace("Frames: 3", "Frames: 4"), "declares 4 frames"),
+        (lambda t: t.replace("Zrotation Xrotation", "Wrotation Xrotation"), "unknown channel"),
+        (lambda t: t.replace("  }\n}\nMOTION", "  }\nMOTION"), "hierarchy ends early"),
+    ],
+)
+def test_read_bvh_rejects_malformed_hierarchies(tmp_path, edit, match):
+    path = tmp_path / "bad.bvh"
+    path.write_text(edit(TINY_BVH))
+    with pytest.raises(InputError, match=match):
+        read_bvh(path)

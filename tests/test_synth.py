@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import posetrack.synth as ps
-from posetrack._so3 import rx, rz
+from posetrack import io
 from posetrack.synth import _mocap
 
 W, H = 160, 120
@@ -347,11 +347,12 @@ def test_cmu_retarget_keeps_joint_angles_and_bone_lengths():
     seq = _gen(14, motion="cmu:131_02", n_frames=24, sensor_noise=False, detector_noise=False,
                with_rgb=False, motion_start=3.0)
     assert np.all(_bone_lengths(seq.joints3d).std(axis=0) < 1e-9)
-    clip = ps.read_bvh(root / "cmu-mocap-bvh-subject131" / "131_02.bvh")
-    pos, _ = ps.bvh_forward_kinematics(clip)
-    idx = np.round((3.0 + np.arange(24) / 30.0) * clip.fps).astype(int)
-    p = {n: pos[idx, clip.index(n)] for n in ("LeftHip", "LeftKnee", "LeftAnkle",
-                                              "RightShoulder", "RightElbow", "RightWrist")}
+    bvh = io.read_bvh(root / "cmu-mocap-bvh-subject131" / "131_02.bvh")
+    pos = io.bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+    fps = 1.0 / bvh.frame_time
+    idx = np.round((3.0 + np.arange(24) / 30.0) * fps).astype(int)
+    p = {n: pos[idx, bvh.names.index(n)] for n in ("LeftHip", "LeftKnee", "LeftAnkle",
+                                                   "RightShoulder", "RightElbow", "RightWrist")}
     knee_data = _angle(p["LeftHip"], p["LeftKnee"], p["LeftAnkle"])
     knee_gen = _angle(seq.joints3d[:, 11], seq.joints3d[:, 12], seq.joints3d[:, 13])
     elbow_data = _angle(p["RightShoulder"], p["RightElbow"], p["RightWrist"])
@@ -385,57 +386,6 @@ def test_data_root_respects_env(tmp_path, monkeypatch):
     assert ps.list_real_motions() == []
     with pytest.raises(FileNotFoundError, match="POSETRACK_DATA"):
         ps.generate(0, motion="cmu:131_01", n_frames=2, width=64, height=48)
-
-
-# --- BVH --------------------------------------------------------------------------------------
-
-TINY_BVH = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
-  JOINT Chest
-  {
-    OFFSET 0 2 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    End Site
-    {
-      OFFSET 0 0 3
-    }
-  }
-}
-MOTION
-Frames: 3
-Frame Time: 0.5
-1 2 3 0 0 0 0 0 0
-0 0 0 90 0 0 0 90 0
-0 0 0 0 0 0 90 90 0
-"""
-
-
-def test_bvh_parse_and_forward_kinematics():
-    clip = ps.parse_bvh(TINY_BVH)
-    assert clip.names == ("Hips", "Chest", "Chest_end")
-    assert list(clip.parents) == [-1, 0, 1]
-    assert clip.fps == 2.0 and clip.motion.shape == (3, 9)
-    pos, rot = ps.bvh_forward_kinematics(clip, scale=2.0)
-    # Frame 0: pure translation.
-    np.testing.assert_allclose(pos[0], [[2, 4, 6], [2, 8, 6], [2, 8, 12]], atol=1e-12)
-    # Frame 1: root Zrot 90 turns the chest offset to -x; chest Xrot 90 then root Zrot 90
-    # take the end offset (0, 0, 3) to (0, -3, 0) and then (3, 0, 0).
-    np.testing.assert_allclose(pos[1], [[0, 0, 0], [-4, 0, 0], [2, 0, 0]], atol=1e-12)
-    np.testing.assert_allclose(rot[1, 1], rz(np.pi / 2) @ rx(np.pi / 2), atol=1e-12)
-    # Frame 2: channel order Z X Y means R = Rz @ Rx (reversed order would give (0, -1, 0)).
-    np.testing.assert_allclose(pos[2, 2], [6, 4, 0], atol=1e-12)
-
-
-def test_bvh_malformed_raises():
-    with pytest.raises(ValueError, match="HIERARCHY"):
-        ps.parse_bvh("ROOT x")
-    with pytest.raises(ValueError, match="motion values"):
-        ps.parse_bvh(TINY_BVH.replace("Frames: 3", "Frames: 4"))
-    with pytest.raises(ValueError, match="channel"):
-        ps.parse_bvh(TINY_BVH.replace("Zrotation Xrotation", "Wrotation Xrotation"))
 
 
 # --- writing ---------------------------------------------------------------------------------

@@ -12,6 +12,7 @@ from ._atomic import atomic_write_bytes as atomic_write_bytes
 from ._atomic import atomic_write_text as atomic_write_text
 from ._bvh import Bvh as Bvh
 from ._bvh import bvh_forward_kinematics as bvh_forward_kinematics
+from ._bvh import bvh_world_transforms as bvh_world_transforms
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
 from ._depth import DepthSequence as DepthSequence
@@ -58,6 +59,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "bvh_forward_kinematics",
+    "bvh_world_transforms",
     "format_ranges",
     "frame_number",
     "list_frames",

@@ -391,21 +391,41 @@ def read_bvh(path: str | os.PathLike[str]) -> Bvh:
     )
 
 
-def bvh_forward_kinematics(
+def bvh_world_transforms(
     parents: np.ndarray,
     offsets: np.ndarray,
     channels: Sequence[Sequence[str]],
     motion: np.ndarray,
-) -> np.ndarray:
-    """World positions ``(T, J, 3)`` of every joint, in the file's length units.
+    *,
+    scale: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and rotations of every joint (forward kinematics of a BVH file).
 
     Standard BVH semantics: a joint's local translation is its OFFSET plus its position
-    channels (if any); its local rotation is the product of its rotation channels in the
-    order listed (degrees); ``Rw[j] = Rw[parent] @ R[j]``, ``pw[j] = pw[parent] + Rw[parent] @
-    t[j]``. Motion columns follow joint order, then channel order. Use with :func:`read_bvh`::
+    channels (if any), times ``scale``; its local rotation is the product of its rotation
+    channels in the order listed (degrees), e.g. ``Zrotation Xrotation Yrotation`` gives
+    ``rz @ rx @ ry``; ``Rw[j] = Rw[parent] @ R[j]``, ``pw[j] = pw[parent] + Rw[parent] @ t[j]``.
+    Motion columns follow joint order, then channel order. An End Site (``Bvh.end_sites``)
+    sits at ``pw[j] + Rw[j] @ (scale * offset)`` of its joint j. Use with :func:`read_bvh`::
 
         bvh = read_bvh(p)
-        positions = bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+        positions, rotations = bvh_world_transforms(
+            bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=0.01  # cm -> m
+        )
+
+    Args:
+        parents: ``(J,)`` parent indices, -1 for the root, ``parents[j] < j``.
+        offsets: ``(J, 3)`` OFFSETs, file length units.
+        channels: J tuples of channel names (``"Xposition"`` ... ``"Zrotation"``).
+        motion: ``(T, C)`` channel values (file length units, degrees).
+        scale: metres (or any unit) per file length unit; multiplies every translation.
+
+    Returns:
+        ``positions (T, J, 3)`` in file units times ``scale`` and ``rotations (T, J, 3, 3)``,
+        each joint's frame in the world (``R_world_joint``).
+
+    Raises:
+        ValueError: the motion columns do not match the channels, or ``parents[j] >= j``.
     """
     parents = np.asarray(parents, dtype=np.int64)
     offsets = np.asarray(offsets, dtype=np.float64)
@@ -427,6 +447,7 @@ def bvh_forward_kinematics(
             else:
                 rot = rot @ _AXIS_ROTATIONS[axis](np.radians(motion[:, col]))
             col += 1
+        trans *= scale
         p = int(parents[j])
         if p < 0:
             rot_w[j], pos_w[j] = rot, trans
@@ -435,4 +456,22 @@ def bvh_forward_kinematics(
                 raise ValueError("bvh_forward_kinematics: parents[j] must be < j")
             rot_w[j] = rot_w[p] @ rot
             pos_w[j] = pos_w[p] + np.einsum("tab,tb->ta", rot_w[p], trans)
-    return pos_w.transpose(1, 0, 2)
+    return pos_w.transpose(1, 0, 2), rot_w.transpose(1, 0, 2, 3)
+
+
+def bvh_forward_kinematics(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    channels: Sequence[Sequence[str]],
+    motion: np.ndarray,
+    *,
+    scale: float = 1.0,
+) -> np.ndarray:
+    """World positions ``(T, J, 3)`` of every joint, in the file's length units times ``scale``.
+
+    The positions of :func:`bvh_world_transforms` (see there for the conventions)::
+
+        bvh = read_bvh(p)
+        positions = bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+    """
+    return bvh_world_transforms(parents, offsets, channels, motion, scale=scale)[0]

@@ -32,8 +32,8 @@ from posetrack._so3 import (
     rz,
     slerp,
 )
+from posetrack.io import bvh_world_transforms, read_bvh
 
-from ._bvh import bvh_forward_kinematics, read_bvh
 from ._motion import MotionClip, ground
 from ._skeleton import SEG, SEGMENTS, Subject
 
@@ -56,7 +56,7 @@ _UTK = {"pelvis": 0, "spine": 1, "neck": 2, "head": 3, "shoulder_l": 4, "elbow_l
 _CMU = {"hip_l": "LeftHip", "hip_r": "RightHip", "knee_l": "LeftKnee", "knee_r": "RightKnee",
         "ankle_l": "LeftAnkle", "ankle_r": "RightAnkle", "toe_l": "LeftToe",
         "toe_r": "RightToe", "spine": "Chest", "neck": "Neck", "head_base": "Head",
-        "head": "Head_end", "shoulder_l": "LeftShoulder", "shoulder_r": "RightShoulder",
+        "shoulder_l": "LeftShoulder", "shoulder_r": "RightShoulder",
         "elbow_l": "LeftElbow", "elbow_r": "RightElbow", "wrist_l": "LeftWrist",
         "wrist_r": "RightWrist", "hand_l": "LFingers", "hand_r": "RFingers"}
 
@@ -198,13 +198,19 @@ def load_markers(name: str) -> tuple[dict[str, np.ndarray], float, dict[str, Any
         path = root / _CMU_DIR / f"{rest}.bvh"
         if not path.is_file():
             raise FileNotFoundError(f"CMU BVH file not found: {path}")
-        clip = read_bvh(path)
-        pos, rot = bvh_forward_kinematics(clip, scale=CMU_UNIT_M)
-        m = {k: pos[:, clip.index(v)] for k, v in _CMU.items()}
+        bvh = read_bvh(path)
+        pos, rot = bvh_world_transforms(
+            bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=CMU_UNIT_M
+        )
+        m = {k: pos[:, bvh.names.index(v)] for k, v in _CMU.items()}
+        head = bvh.names.index("Head")
+        # Top of the head: the Head joint's End Site, a fixed offset in the Head's frame.
+        top = np.broadcast_to(bvh.end_sites[head] * CMU_UNIT_M, (len(pos), 3))
+        m["head"] = pos[:, head] + np.einsum("fij,fj->fi", rot[:, head], top)
         m["pelvis"] = 0.5 * (m["hip_l"] + m["hip_r"])
         # The head's own frame gives its facing (BVH rest pose faces +z).
-        m["head_fwd"] = rot[:, clip.index("Head")] @ np.array([0.0, 0.0, 1.0])
-        fps = clip.fps
+        m["head_fwd"] = rot[:, head] @ np.array([0.0, 0.0, 1.0])
+        fps = 1.0 / bvh.frame_time
         info.update(file=str(path), source_fps=fps, kinect=False)
         return m, fps, info
     if kind == "msr":
