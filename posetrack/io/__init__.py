@@ -1,5 +1,6 @@
 """File formats: validated inputs (depth PNGs, OpenPose JSON, intrinsics, colour) and
-atomically written outputs (poses ``.npz``, EasyMocap JSON, BVH).
+atomically written outputs (poses ``.npz``, EasyMocap JSON, BVH, and the input formats
+themselves, which ``posetrack.synth.save`` writes).
 
 NumPy/OpenCV only. Every bad input file raises :class:`InputError` (a ``ValueError``) naming
 the file, the field and the offending value.
@@ -40,6 +41,7 @@ from ._recording import load_recording as load_recording
 from ._rgb import RgbFrames as RgbFrames
 from ._rgb import RgbVideo as RgbVideo
 from ._rgb import read_rgb as read_rgb
+from ._rgb import write_rgb as write_rgb
 
 __all__ = [
     "MARKER_NAME",
@@ -77,4 +79,5 @@ __all__ = [
     "write_intrinsics_json",
     "write_openpose_json",
     "write_poses_npz",
+    "write_rgb",
 ]
