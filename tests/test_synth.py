@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -425,23 +426,42 @@ def test_save_is_atomic_on_failure(tmp_path, monkeypatch):
     import posetrack.synth._write as wr
 
     calls = {"n": 0}
-    real = wr.cv2.imwrite
+    real = wr.write_depth_png
 
-    def flaky(path, img):
+    def flaky(path, depth, **kw):
         calls["n"] += 1
-        if calls["n"] > 3:
+        if calls["n"] > 2:
             raise OSError("disk full")
-        return real(path, img)
+        return real(path, depth, **kw)
 
-    monkeypatch.setattr(wr.cv2, "imwrite", flaky)
+    monkeypatch.setattr(wr, "write_depth_png", flaky)
     with pytest.raises(OSError, match="disk full"):
         ps.save(seq, tmp_path / "rec")
+    assert calls["n"] == 3
     assert list(tmp_path.iterdir()) == []
 
 
-def test_openpose_json_without_detections_has_no_person():
-    js = ps.openpose_json(np.zeros((18, 2)), np.zeros(18))
+def test_frame_without_detections_is_saved_with_no_person(tmp_path):
+    seq = _gen(18, motion="wave", n_frames=2, with_rgb=False)
+    conf = seq.confidence.copy()
+    conf[1] = 0.0
+    dest = ps.save(dataclasses.replace(seq, confidence=conf), tmp_path / "rec")
+    js = json.loads((dest / "keypoints" / "000001_keypoints.json").read_text())
     assert js == {"version": 1.3, "people": []}
+    assert not (dest / "rgb").exists()
+    rec = io.load_recording(depth_dir=dest / "depth", keypoints_dir=dest / "keypoints",
+                            intrinsics_path=dest / "intrinsics.json")
+    assert list(rec.num_people) == [1, 0] and list(rec.observed) == [True, False]
+
+
+def test_overwrite_replaces_only_a_folder_written_by_posetrack(tmp_path):
+    seq = _gen(19, n_frames=1, with_rgb=False)
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "holiday.jpg").write_bytes(b"not ours")
+    with pytest.raises(FileExistsError, match="not written by posetrack"):
+        ps.save(seq, foreign, overwrite=True)
+    assert (foreign / "holiday.jpg").read_bytes() == b"not ours"
 
 
 # --- geometry internals ----------------------------------------------------------------------

@@ -25,7 +25,6 @@ from ._sensor import ideal_sensor as ideal_sensor
 from ._sensor import projector_shadow as projector_shadow
 from ._sensor import simulate_sensor as simulate_sensor
 from ._skeleton import KEYPOINT_NAMES as KEYPOINT_NAMES
-from ._write import openpose_json as openpose_json
 from ._write import save as save
 
 __all__ = [
@@ -39,7 +38,6 @@ __all__ = [
     "ideal_sensor",
     "list_real_motions",
     "load_markers",
-    "openpose_json",
     "projector_shadow",
     "save",
     "simulate_detector",
