@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from conftest import require_data
+from test_so3 import qmul, qrotate, quat_axis_angle
 
 from posetrack._so3 import rx, rz
 from posetrack.io import (
@@ -12,28 +13,6 @@ from posetrack.io import (
     read_bvh,
     write_bvh,
 )
-
-
-def qmul(a, b):
-    """Hamilton product of wxyz quaternions (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
-def qrotate(q, v):
-    """Rotate vectors v (..., 3) by unit quaternions q (..., 4): q v q*."""
-    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], -1)
-    conj = q * np.array([1, -1, -1, -1])
-    return qmul(qmul(q, qv), conj)[..., 1:]
 
 
 def fk_from_quaternions(parents, offsets, root, quats):
@@ -53,11 +32,6 @@ def fk_from_quaternions(parents, offsets, root, quats):
     return p_world
 
 
-def axis_angle_quat(axis, angle):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
-
-
 def random_motion(seed, n_frames=40, n_joints=12):
     rng = np.random.default_rng(seed)
     # parents[j] < j, deliberately not in depth-first order (the file order differs).
@@ -66,11 +40,11 @@ def random_motion(seed, n_frames=40, n_joints=12):
     root = rng.uniform(-2, 2, (n_frames, 3))
     quats = rng.normal(size=(n_frames, n_joints, 4))
     # Gimbal lock of the ZYX decomposition (y = +-90 deg), near-identity, and q vs -q.
-    lock = qmul(axis_angle_quat([0, 0, 1], 0.7), axis_angle_quat([0, 1, 0], np.pi / 2))
-    quats[0, :] = qmul(lock, axis_angle_quat([1, 0, 0], -0.3))
-    quats[1, :] = qmul(axis_angle_quat([0, 1, 0], -np.pi / 2), axis_angle_quat([1, 0, 0], 2.0))
+    lock = qmul(quat_axis_angle([0, 0, 1], 0.7), quat_axis_angle([0, 1, 0], np.pi / 2))
+    quats[0, :] = qmul(lock, quat_axis_angle([1, 0, 0], -0.3))
+    quats[1, :] = qmul(quat_axis_angle([0, 1, 0], -np.pi / 2), quat_axis_angle([1, 0, 0], 2.0))
     quats[2, :] = [1.0, 1e-9, -2e-9, 1e-9]
-    quats[3, :] = axis_angle_quat([0, 1, 0], np.pi / 2 - 1e-7)
+    quats[3, :] = quat_axis_angle([0, 1, 0], np.pi / 2 - 1e-7)
     quats[5] = -quats[4]
     names = [f"joint{j}" for j in range(n_joints)]
     return names, parents, offsets, root, quats
@@ -124,7 +98,7 @@ def test_camera_to_y_up(tmp_path):
 
 def test_euler_angles_are_unwrapped_over_time(tmp_path):
     angles = np.linspace(0, 4 * np.pi, 50)
-    quats = np.stack([axis_angle_quat([0, 0, 1], a) for a in angles])[:, None]
+    quats = np.stack([quat_axis_angle([0, 0, 1], a) for a in angles])[:, None]
     path = tmp_path / "spin.bvh"
     write_bvh(
         path, joint_names=["root"], parents=[-1], offsets=np.zeros((1, 3)),

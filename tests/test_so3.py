@@ -1,6 +1,7 @@
 """posetrack._so3 (NumPy rotation algebra, quaternions wxyz) against independent formulas:
 the Hamilton product ``q v q*`` for quaternions, textbook axis matrices for Euler angles and
-the power ``q0 (q0^-1 q1)^t`` for slerp. Pure NumPy, fast."""
+the power ``q0 (q0^-1 q1)^t`` for slerp. Pure NumPy, fast. The quaternion references here
+(``qmul``, ``qrotate``, ``quat_axis_angle``) also serve tests/test_io_bvh.py."""
 
 import numpy as np
 import pytest
