@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._body import BodyShape
-from ._rotation import np_matrix_to_quat, np_quat_between, np_quat_to_matrix
+from ._so3 import matrix_to_quat, quat_between, quat_to_matrix
 
 # (field, [(keypoint a, keypoint b), ...], divisor): segment lengths measured between landmarks.
 _SEGMENTS = (
@@ -168,7 +168,7 @@ def initial_pose(
         root = (P[2] + sw * left if F[2] else P[5] - sw * left) - torso * up
     else:  # only limbs or the head: their centroid, a rough start for LM
         root = P[F].mean(axis=0)
-    q_root = np_matrix_to_quat(R0)
+    q_root = matrix_to_quat(R0)
 
     joints = np.tile([1.0, 0.0, 0.0, 0.0], (9, 1))
     down = np.array([0.0, -1.0, 0.0])
@@ -178,10 +178,10 @@ def initial_pose(
         if not (F[a] and F[b]):
             continue
         d_upper = R0.T @ (P[b] - P[a])  # in the root frame
-        q_upper = np_quat_between(down, d_upper)
+        q_upper = quat_between(down, d_upper)
         joints[j] = q_upper
         if F[c]:
-            R_upper = np_quat_to_matrix(q_upper)
+            R_upper = quat_to_matrix(q_upper)
             d_lower = R_upper.T @ R0.T @ (P[c] - P[b])
-            joints[j + 1] = np_quat_between(down, d_lower)
+            joints[j + 1] = quat_between(down, d_lower)
     return np.concatenate([root, q_root, joints.reshape(-1)])

@@ -1,12 +1,12 @@
-"""Quaternion helpers (wxyz everywhere), written to be NaN-free under autodiff.
+"""Quaternion helpers in JAX (wxyz everywhere), written to be NaN-free under autodiff.
 
 All functions take the last axis as the quaternion (w, x, y, z) and broadcast over the rest.
+Host-side NumPy rotation algebra (io, synth, initialisation) lives in :mod:`posetrack._so3`.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, Float
 
 _IDENTITY = (1.0, 0.0, 0.0, 0.0)
@@ -68,91 +68,3 @@ def quat_angle(
     """Rotation angle (radians) between two unit quaternions (wxyz); ``q`` and ``-q`` are equal."""
     d = jnp.abs(jnp.sum(q1 * q2, axis=-1))
     return 2.0 * jnp.arccos(jnp.clip(d, 0.0, 1.0))
-
-
-# ---------------------------------------------------------------------------------------------
-# NumPy versions for host-side code (initialisation, file export): no tracing, float64.
-# ---------------------------------------------------------------------------------------------
-
-
-def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """NumPy rotation matrix of a quaternion (wxyz), normalised here."""
-    q = np.asarray(q, dtype=np.float64)
-    n = np.linalg.norm(q, axis=-1, keepdims=True)
-    q = np.where(n > 1e-12, q / np.where(n > 1e-12, n, 1.0), np.array(_IDENTITY))
-    return _np_q2m(q)
-
-
-def _np_q2m(q: np.ndarray) -> np.ndarray:
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def np_matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """NumPy unit quaternion (wxyz, w >= 0) of a rotation matrix (Shepperd's method)."""
-    m = np.asarray(m, dtype=np.float64)
-    batch = m.shape[:-2]
-    m = m.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    for i, r in enumerate(m):
-        tr = np.trace(r)
-        if tr > 0:
-            s = np.sqrt(tr + 1.0) * 2
-            q = [
-                0.25 * s,
-                (r[2, 1] - r[1, 2]) / s,
-                (r[0, 2] - r[2, 0]) / s,
-                (r[1, 0] - r[0, 1]) / s,
-            ]
-        elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-            s = np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2]) * 2
-            q = [
-                (r[2, 1] - r[1, 2]) / s,
-                0.25 * s,
-                (r[0, 1] + r[1, 0]) / s,
-                (r[0, 2] + r[2, 0]) / s,
-            ]
-        elif r[1, 1] > r[2, 2]:
-            s = np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2]) * 2
-            q = [
-                (r[0, 2] - r[2, 0]) / s,
-                (r[0, 1] + r[1, 0]) / s,
-                0.25 * s,
-                (r[1, 2] + r[2, 1]) / s,
-            ]
-        else:
-            s = np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1]) * 2
-            q = [
-                (r[1, 0] - r[0, 1]) / s,
-                (r[0, 2] + r[2, 0]) / s,
-                (r[1, 2] + r[2, 1]) / s,
-                0.25 * s,
-            ]
-        q = np.asarray(q)
-        out[i] = q if q[0] >= 0 else -q
-    return out.reshape(*batch, 4)
-
-
-def np_quat_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """NumPy unit quaternion (wxyz) of the smallest rotation taking direction ``a`` to ``b``."""
-    a = np.asarray(a, dtype=np.float64)
-    b = np.asarray(b, dtype=np.float64)
-    a = a / max(np.linalg.norm(a), 1e-12)
-    b = b / max(np.linalg.norm(b), 1e-12)
-    d = float(np.dot(a, b))
-    if d < -1 + 1e-9:
-        # Opposite directions: rotate by pi about any axis orthogonal to a.
-        axis = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return np.array([0.0, *axis])
-    q = np.array([1.0 + d, *np.cross(a, b)])
-    return q / np.linalg.norm(q)

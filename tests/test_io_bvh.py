@@ -3,39 +3,16 @@
 import numpy as np
 import pytest
 from conftest import require_data
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from test_so3 import qmul, qrotate, quat_axis_angle
 
+from posetrack._so3 import rx, rz
 from posetrack.io import (
     InputError,
     bvh_forward_kinematics,
-    matrix_to_euler_zyx,
-    quaternion_to_matrix,
+    bvh_world_transforms,
     read_bvh,
     write_bvh,
 )
-
-
-def qmul(a, b):
-    """Hamilton product of wxyz quaternions (..., 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        -1,
-    )
-
-
-def qrotate(q, v):
-    """Rotate vectors v (..., 3) by unit quaternions q (..., 4): q v q*."""
-    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], -1)
-    conj = q * np.array([1, -1, -1, -1])
-    return qmul(qmul(q, qv), conj)[..., 1:]
 
 
 def fk_from_quaternions(parents, offsets, root, quats):
@@ -55,11 +32,6 @@ def fk_from_quaternions(parents, offsets, root, quats):
     return p_world
 
 
-def axis_angle_quat(axis, angle):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
-
-
 def random_motion(seed, n_frames=40, n_joints=12):
     rng = np.random.default_rng(seed)
     # parents[j] < j, deliberately not in depth-first order (the file order differs).
@@ -68,11 +40,11 @@ def random_motion(seed, n_frames=40, n_joints=12):
     root = rng.uniform(-2, 2, (n_frames, 3))
     quats = rng.normal(size=(n_frames, n_joints, 4))
     # Gimbal lock of the ZYX decomposition (y = +-90 deg), near-identity, and q vs -q.
-    lock = qmul(axis_angle_quat([0, 0, 1], 0.7), axis_angle_quat([0, 1, 0], np.pi / 2))
-    quats[0, :] = qmul(lock, axis_angle_quat([1, 0, 0], -0.3))
-    quats[1, :] = qmul(axis_angle_quat([0, 1, 0], -np.pi / 2), axis_angle_quat([1, 0, 0], 2.0))
+    lock = qmul(quat_axis_angle([0, 0, 1], 0.7), quat_axis_angle([0, 1, 0], np.pi / 2))
+    quats[0, :] = qmul(lock, quat_axis_angle([1, 0, 0], -0.3))
+    quats[1, :] = qmul(quat_axis_angle([0, 1, 0], -np.pi / 2), quat_axis_angle([1, 0, 0], 2.0))
     quats[2, :] = [1.0, 1e-9, -2e-9, 1e-9]
-    quats[3, :] = axis_angle_quat([0, 1, 0], np.pi / 2 - 1e-7)
+    quats[3, :] = quat_axis_angle([0, 1, 0], np.pi / 2 - 1e-7)
     quats[5] = -quats[4]
     names = [f"joint{j}" for j in range(n_joints)]
     return names, parents, offsets, root, quats
@@ -126,7 +98,7 @@ def test_camera_to_y_up(tmp_path):
 
 def test_euler_angles_are_unwrapped_over_time(tmp_path):
     angles = np.linspace(0, 4 * np.pi, 50)
-    quats = np.stack([axis_angle_quat([0, 0, 1], a) for a in angles])[:, None]
+    quats = np.stack([quat_axis_angle([0, 0, 1], a) for a in angles])[:, None]
     path = tmp_path / "spin.bvh"
     write_bvh(
         path, joint_names=["root"], parents=[-1], offsets=np.zeros((1, 3)),
@@ -134,27 +106,6 @@ def test_euler_angles_are_unwrapped_over_time(tmp_path):
     )  # fmt: skip
     z = read_bvh(path).motion[:, 3]
     assert np.max(np.abs(np.diff(z))) < 20 and z[-1] == pytest.approx(720.0, abs=1e-4)
-
-
-unit_quaternions = st.lists(
-    st.floats(-1, 1, allow_nan=False), min_size=4, max_size=4
-).filter(lambda q: np.linalg.norm(q) > 1e-3)
-
-
-@settings(max_examples=200, deadline=None)
-@given(q=unit_quaternions, near_lock=st.booleans(), sign=st.sampled_from([1.0, -1.0]))
-def test_matrix_to_euler_zyx_reconstructs_the_rotation(q, near_lock, sign):
-    q = np.asarray(q) * sign
-    if near_lock:  # push the rotation onto (or next to) y = +-90 deg
-        q = qmul(axis_angle_quat([0, 1, 0], np.pi / 2), q * np.array([1, 1, 1e-9, 1]))
-    R = quaternion_to_matrix(q)
-    z, y, x = matrix_to_euler_zyx(R)
-    cz, sz, cy, sy, cx, sx = np.cos(z), np.sin(z), np.cos(y), np.sin(y), np.cos(x), np.sin(x)
-    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    np.testing.assert_allclose(Rz @ Ry @ Rx, R, atol=1e-12)
-    np.testing.assert_allclose(quaternion_to_matrix(-q), R, atol=1e-15)
 
 
 def test_write_bvh_rejects_bad_arguments(tmp_path):
@@ -214,3 +165,68 @@ def test_reads_a_real_cmu_file():
     lengths = np.linalg.norm(positions[:, child] - positions[:, bvh.parents[child]], axis=-1)
     np.testing.assert_allclose(lengths, np.broadcast_to(lengths[0], lengths.shape), atol=1e-9)
     np.testing.assert_allclose(lengths[0], np.linalg.norm(bvh.offsets[child], axis=-1), atol=1e-9)
+
+
+TINY_BVH = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
+  JOINT Chest
+  {
+    OFFSET 0 2 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 0 3
+    }
+  }
+}
+MOTION
+Frames: 3
+Frame Time: 0.5
+1 2 3 0 0 0 0 0 0
+0 0 0 90 0 0 0 90 0
+0 0 0 0 0 0 90 90 0
+"""
+
+
+def test_hand_written_file_per_joint_channel_order_end_site_and_scale(tmp_path):
+    path = tmp_path / "tiny.bvh"
+    path.write_text(TINY_BVH)
+    bvh = read_bvh(path)
+    assert bvh.names == ("Hips", "Chest") and list(bvh.parents) == [-1, 0]
+    assert bvh.frame_time == 0.5 and bvh.motion.shape == (3, 9)
+    assert bvh.channels[1] == ("Zrotation", "Xrotation", "Yrotation")
+    np.testing.assert_array_equal(bvh.end_sites[1], [0, 0, 3])
+    pos, rot = bvh_world_transforms(bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=2.0)
+    np.testing.assert_array_equal(
+        pos, bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=2.0)
+    )
+    end = pos[:, 1] + np.einsum("tij,j->ti", rot[:, 1], 2.0 * bvh.end_sites[1])
+    # Frame 0: pure translation (scaled).
+    np.testing.assert_allclose(pos[0], [[2, 4, 6], [2, 8, 6]], atol=1e-12)
+    np.testing.assert_allclose(end[0], [2, 8, 12], atol=1e-12)
+    # Frame 1: root Zrot 90 turns the chest offset to -x; chest Xrot 90 then root Zrot 90
+    # take the end offset (0, 0, 3) to (0, -3, 0) and then (3, 0, 0).
+    np.testing.assert_allclose(pos[1], [[0, 0, 0], [-4, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(end[1], [2, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(rot[1, 1], rz(np.pi / 2) @ rx(np.pi / 2), atol=1e-12)
+    # Frame 2: channel order Z X Y means R = Rz @ Rx (reversed order would give (0, -1, 0)).
+    np.testing.assert_allclose(end[2], [6, 4, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "edit,match",
+    [
+        (lambda t: t.replace("HIERARCHY\n", ""), "HIERARCHY"),
+        (lambda t: t.replace("Frames: 3", "Frames: 4"), "declares 4 frames"),
+        (lambda t: t.replace("Zrotation Xrotation", "Wrotation Xrotation"), "unknown channel"),
+        (lambda t: t.replace("  }\n}\nMOTION", "  }\nMOTION"), "hierarchy ends early"),
+    ],
+)
+def test_read_bvh_rejects_malformed_hierarchies(tmp_path, edit, match):
+    path = tmp_path / "bad.bvh"
+    path.write_text(edit(TINY_BVH))
+    with pytest.raises(InputError, match=match):
+        read_bvh(path)

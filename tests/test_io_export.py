@@ -11,6 +11,7 @@ from posetrack.io import (
     MARKER_NAME,
     InputError,
     atomic_dir,
+    atomic_open,
     atomic_write_bytes,
     read_poses_npz,
     write_easymocap,
@@ -204,3 +205,25 @@ def test_atomic_dir_never_replaces_foreign_folders(tmp_path):
     with atomic_dir(target) as tmp:
         (tmp / "a.json").write_text("[]")
     assert (target / "a.json").exists() and (target / MARKER_NAME).exists()
+
+
+def test_files_inside_atomic_dir_are_written_in_place_without_fsync(tmp_path, monkeypatch):
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: (synced.append(fd), real_fsync(fd))[1])
+    target = tmp_path / "out"
+    with atomic_dir(target) as tmp:
+        for k in range(3):
+            atomic_write_bytes(tmp / "sub" / f"{k}.bin", b"%d" % k)
+        assert sorted(p.name for p in (tmp / "sub").iterdir()) == ["0.bin", "1.bin", "2.bin"]
+        assert synced == []  # no temporary files, no per-file fsync: the folder is synced once
+        with pytest.raises(RuntimeError):
+            with atomic_open(tmp / "sub" / "3.bin") as f:
+                f.write(b"partial")
+                raise RuntimeError("interrupted")
+        assert not (tmp / "sub" / "3.bin").exists()  # a failed write leaves no partial file
+    assert [(target / "sub" / f"{k}.bin").read_bytes() for k in range(3)] == [b"0", b"1", b"2"]
+    assert len(synced) >= 5  # 3 files + the folders, by atomic_dir before the rename
+    synced.clear()
+    atomic_write_bytes(target / "sub" / "0.bin", b"new")  # outside a build: the atomic path
+    assert (target / "sub" / "0.bin").read_bytes() == b"new" and len(synced) == 2

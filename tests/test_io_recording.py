@@ -13,9 +13,11 @@ from posetrack.io import (
     format_ranges,
     frame_number,
     load_recording,
+    read_rgb,
     write_depth_png,
     write_intrinsics_json,
     write_openpose_json,
+    write_rgb,
 )
 
 W, H = 64, 48
@@ -246,3 +248,19 @@ def test_rgb_video(tmp_path):
     (folder / "keypoints" / "000005_keypoints.json").unlink()
     with pytest.raises(InputError, match="video has 6 frames but the recording has 5"):
         _load(folder, rgb=video)
+
+
+def test_write_rgb_round_trip_keeps_rgb_order(tmp_path):
+    rng = np.random.default_rng(7)
+    image = rng.integers(0, 256, size=(H, W, 3), dtype=np.uint8)
+    write_rgb(tmp_path / "c.png", image)
+    np.testing.assert_array_equal(read_rgb(tmp_path / "c.png"), image)
+    # On disk as any image tool sees it: OpenCV reads BGR, so the channels come reversed.
+    np.testing.assert_array_equal(cv2.imread(str(tmp_path / "c.png"))[..., ::-1], image)
+    with pytest.raises(ValueError, match="uint8"):
+        write_rgb(tmp_path / "f.png", image.astype(np.float32))
+    with pytest.raises(ValueError, match="uint8"):
+        write_rgb(tmp_path / "g.png", image[..., 0])
+    with pytest.raises(ValueError, match="cannot encode"):
+        write_rgb(tmp_path / "c.notanimage", image)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -11,8 +12,8 @@ import numpy as np
 import pytest
 
 import posetrack.synth as ps
+from posetrack import io
 from posetrack.synth import _mocap
-from posetrack.synth._so3 import rx, rz
 
 W, H = 160, 120
 # Rigid distances (the shoulder width is not: the clavicles move).
@@ -347,11 +348,12 @@ def test_cmu_retarget_keeps_joint_angles_and_bone_lengths():
     seq = _gen(14, motion="cmu:131_02", n_frames=24, sensor_noise=False, detector_noise=False,
                with_rgb=False, motion_start=3.0)
     assert np.all(_bone_lengths(seq.joints3d).std(axis=0) < 1e-9)
-    clip = ps.read_bvh(root / "cmu-mocap-bvh-subject131" / "131_02.bvh")
-    pos, _ = ps.bvh_forward_kinematics(clip)
-    idx = np.round((3.0 + np.arange(24) / 30.0) * clip.fps).astype(int)
-    p = {n: pos[idx, clip.index(n)] for n in ("LeftHip", "LeftKnee", "LeftAnkle",
-                                              "RightShoulder", "RightElbow", "RightWrist")}
+    bvh = io.read_bvh(root / "cmu-mocap-bvh-subject131" / "131_02.bvh")
+    pos = io.bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+    fps = 1.0 / bvh.frame_time
+    idx = np.round((3.0 + np.arange(24) / 30.0) * fps).astype(int)
+    p = {n: pos[idx, bvh.names.index(n)] for n in ("LeftHip", "LeftKnee", "LeftAnkle",
+                                                   "RightShoulder", "RightElbow", "RightWrist")}
     knee_data = _angle(p["LeftHip"], p["LeftKnee"], p["LeftAnkle"])
     knee_gen = _angle(seq.joints3d[:, 11], seq.joints3d[:, 12], seq.joints3d[:, 13])
     elbow_data = _angle(p["RightShoulder"], p["RightElbow"], p["RightWrist"])
@@ -385,57 +387,6 @@ def test_data_root_respects_env(tmp_path, monkeypatch):
     assert ps.list_real_motions() == []
     with pytest.raises(FileNotFoundError, match="POSETRACK_DATA"):
         ps.generate(0, motion="cmu:131_01", n_frames=2, width=64, height=48)
-
-
-# --- BVH --------------------------------------------------------------------------------------
-
-TINY_BVH = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Yrotation Xrotation
-  JOINT Chest
-  {
-    OFFSET 0 2 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    End Site
-    {
-      OFFSET 0 0 3
-    }
-  }
-}
-MOTION
-Frames: 3
-Frame Time: 0.5
-1 2 3 0 0 0 0 0 0
-0 0 0 90 0 0 0 90 0
-0 0 0 0 0 0 90 90 0
-"""
-
-
-def test_bvh_parse_and_forward_kinematics():
-    clip = ps.parse_bvh(TINY_BVH)
-    assert clip.names == ("Hips", "Chest", "Chest_end")
-    assert list(clip.parents) == [-1, 0, 1]
-    assert clip.fps == 2.0 and clip.motion.shape == (3, 9)
-    pos, rot = ps.bvh_forward_kinematics(clip, scale=2.0)
-    # Frame 0: pure translation.
-    np.testing.assert_allclose(pos[0], [[2, 4, 6], [2, 8, 6], [2, 8, 12]], atol=1e-12)
-    # Frame 1: root Zrot 90 turns the chest offset to -x; chest Xrot 90 then root Zrot 90
-    # take the end offset (0, 0, 3) to (0, -3, 0) and then (3, 0, 0).
-    np.testing.assert_allclose(pos[1], [[0, 0, 0], [-4, 0, 0], [2, 0, 0]], atol=1e-12)
-    np.testing.assert_allclose(rot[1, 1], rz(np.pi / 2) @ rx(np.pi / 2), atol=1e-12)
-    # Frame 2: channel order Z X Y means R = Rz @ Rx (reversed order would give (0, -1, 0)).
-    np.testing.assert_allclose(pos[2, 2], [6, 4, 0], atol=1e-12)
-
-
-def test_bvh_malformed_raises():
-    with pytest.raises(ValueError, match="HIERARCHY"):
-        ps.parse_bvh("ROOT x")
-    with pytest.raises(ValueError, match="motion values"):
-        ps.parse_bvh(TINY_BVH.replace("Frames: 3", "Frames: 4"))
-    with pytest.raises(ValueError, match="channel"):
-        ps.parse_bvh(TINY_BVH.replace("Zrotation Xrotation", "Wrotation Xrotation"))
 
 
 # --- writing ---------------------------------------------------------------------------------
@@ -475,23 +426,42 @@ def test_save_is_atomic_on_failure(tmp_path, monkeypatch):
     import posetrack.synth._write as wr
 
     calls = {"n": 0}
-    real = wr.cv2.imwrite
+    real = wr.write_depth_png
 
-    def flaky(path, img):
+    def flaky(path, depth, **kw):
         calls["n"] += 1
-        if calls["n"] > 3:
+        if calls["n"] > 2:
             raise OSError("disk full")
-        return real(path, img)
+        return real(path, depth, **kw)
 
-    monkeypatch.setattr(wr.cv2, "imwrite", flaky)
+    monkeypatch.setattr(wr, "write_depth_png", flaky)
     with pytest.raises(OSError, match="disk full"):
         ps.save(seq, tmp_path / "rec")
+    assert calls["n"] == 3
     assert list(tmp_path.iterdir()) == []
 
 
-def test_openpose_json_without_detections_has_no_person():
-    js = ps.openpose_json(np.zeros((18, 2)), np.zeros(18))
+def test_frame_without_detections_is_saved_with_no_person(tmp_path):
+    seq = _gen(18, motion="wave", n_frames=2, with_rgb=False)
+    conf = seq.confidence.copy()
+    conf[1] = 0.0
+    dest = ps.save(dataclasses.replace(seq, confidence=conf), tmp_path / "rec")
+    js = json.loads((dest / "keypoints" / "000001_keypoints.json").read_text())
     assert js == {"version": 1.3, "people": []}
+    assert not (dest / "rgb").exists()
+    rec = io.load_recording(depth_dir=dest / "depth", keypoints_dir=dest / "keypoints",
+                            intrinsics_path=dest / "intrinsics.json")
+    assert list(rec.num_people) == [1, 0] and list(rec.observed) == [True, False]
+
+
+def test_overwrite_replaces_only_a_folder_written_by_posetrack(tmp_path):
+    seq = _gen(19, n_frames=1, with_rgb=False)
+    foreign = tmp_path / "photos"
+    foreign.mkdir()
+    (foreign / "holiday.jpg").write_bytes(b"not ours")
+    with pytest.raises(FileExistsError, match="not written by posetrack"):
+        ps.save(seq, foreign, overwrite=True)
+    assert (foreign / "holiday.jpg").read_bytes() == b"not ours"
 
 
 # --- geometry internals ----------------------------------------------------------------------
@@ -535,7 +505,7 @@ def test_round_cone_ray_cast_is_exact():
 
 
 def test_ellipsoid_ray_cast_is_exact():
-    from posetrack.synth._so3 import axis_angle
+    from posetrack._so3 import axis_angle
     from posetrack.synth._surface import _hit_ellipsoid
 
     rng = np.random.default_rng(1)
@@ -555,31 +525,6 @@ def test_ellipsoid_ray_cast_is_exact():
         for dt, outside in ((-1e-3, True), (1e-3, False)):
             q = ((t[hit, None] + dt) * rays[0, hit] - c) @ R / radii
             assert np.all((np.sum(q**2, -1) > 1) == outside)
-
-
-def test_so3_quaternion_roundtrip_and_sign():
-    from hypothesis import given, settings
-    from hypothesis import strategies as st
-
-    from posetrack.synth._so3 import axis_angle, from_quat, slerp, to_quat
-
-    @settings(max_examples=60, deadline=None)
-    @given(st.lists(st.floats(-1, 1), min_size=3, max_size=3),
-           st.floats(0.0, np.pi), st.floats(0, 1))
-    def check(axis, angle, frac):
-        ax = np.asarray(axis)
-        if np.linalg.norm(ax) < 1e-3:
-            ax = np.array([0.0, 0.0, 1.0])
-        R = axis_angle(ax, np.float64(angle))
-        q = to_quat(R)
-        np.testing.assert_allclose(from_quat(q), R, atol=1e-9)
-        np.testing.assert_allclose(from_quat(-q), R, atol=1e-9)  # q and -q: same rotation
-        q_id = np.array([1.0, 0, 0, 0])
-        qs = slerp(q_id, q, np.float64(frac))
-        np.testing.assert_allclose(from_quat(qs), axis_angle(ax, np.float64(angle * frac)),
-                                   atol=1e-7)
-
-    check()
 
 
 def test_hallucinated_limbs_stay_attached_to_their_parent():

@@ -1,5 +1,6 @@
 """File formats: validated inputs (depth PNGs, OpenPose JSON, intrinsics, colour) and
-atomically written outputs (poses ``.npz``, EasyMocap JSON, BVH).
+atomically written outputs (poses ``.npz``, EasyMocap JSON, BVH, and the input formats
+themselves, which ``posetrack.synth.save`` writes).
 
 NumPy/OpenCV only. Every bad input file raises :class:`InputError` (a ``ValueError``) naming
 the file, the field and the offending value.
@@ -12,8 +13,7 @@ from ._atomic import atomic_write_bytes as atomic_write_bytes
 from ._atomic import atomic_write_text as atomic_write_text
 from ._bvh import Bvh as Bvh
 from ._bvh import bvh_forward_kinematics as bvh_forward_kinematics
-from ._bvh import matrix_to_euler_zyx as matrix_to_euler_zyx
-from ._bvh import quaternion_to_matrix as quaternion_to_matrix
+from ._bvh import bvh_world_transforms as bvh_world_transforms
 from ._bvh import read_bvh as read_bvh
 from ._bvh import write_bvh as write_bvh
 from ._depth import DepthSequence as DepthSequence
@@ -41,6 +41,7 @@ from ._recording import load_recording as load_recording
 from ._rgb import RgbFrames as RgbFrames
 from ._rgb import RgbVideo as RgbVideo
 from ._rgb import read_rgb as read_rgb
+from ._rgb import write_rgb as write_rgb
 
 __all__ = [
     "MARKER_NAME",
@@ -60,13 +61,12 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "bvh_forward_kinematics",
+    "bvh_world_transforms",
     "format_ranges",
     "frame_number",
     "list_frames",
     "load_recording",
-    "matrix_to_euler_zyx",
     "probe_depth_png",
-    "quaternion_to_matrix",
     "read_bvh",
     "read_depth",
     "read_intrinsics_json",
@@ -79,4 +79,5 @@ __all__ = [
     "write_intrinsics_json",
     "write_openpose_json",
     "write_poses_npz",
+    "write_rgb",
 ]

@@ -36,6 +36,8 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from posetrack._so3 import matrix_to_euler_zyx, quat_to_matrix, rx, ry, rz
+
 from ._atomic import atomic_write_text
 from ._errors import InputError
 
@@ -44,6 +46,7 @@ _CHANNEL_NAMES = {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
 _ROOT_CHANNELS = ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
 _JOINT_CHANNELS = ("Zrotation", "Yrotation", "Xrotation")
 _NAME_OK = re.compile(r"^[^\s{}]+$")
+_AXIS_ROTATIONS = (rx, ry, rz)
 
 
 class Bvh(NamedTuple):
@@ -63,55 +66,6 @@ class Bvh(NamedTuple):
     """Seconds per frame."""
     end_sites: dict[int, np.ndarray]
     """Joint index -> End Site OFFSET ``(3,)``."""
-
-
-def quaternion_to_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` from quaternions ``(..., 4)`` in wxyz order.
-
-    The quaternions are normalised here; q and -q give the same matrix.
-    """
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_euler_zyx(R: np.ndarray) -> np.ndarray:
-    """Angles ``(..., 3)`` = (z, y, x) in radians with ``R = Rz(z) @ Ry(y) @ Rx(x)``.
-
-    Exact to rounding everywhere, including gimbal lock (y = +-pi/2): z comes from the first
-    column (arbitrary but harmless when that column is along +-z), then y and x are read off
-    ``Rz(z)^T R = Ry(y) Rx(x)``, whose second row is ``[0, cos x, -sin x]`` whatever y is.
-    """
-    R = np.asarray(R, dtype=np.float64)
-    z = np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    cz, sz = np.cos(z), np.sin(z)
-    # M = Rz(z)^T R: rows 0 and 1 are mixes of R's rows 0 and 1.
-    m00 = cz * R[..., 0, 0] + sz * R[..., 1, 0]
-    m11 = -sz * R[..., 0, 1] + cz * R[..., 1, 1]
-    m12 = -sz * R[..., 0, 2] + cz * R[..., 1, 2]
-    y = np.arctan2(-R[..., 2, 0], m00)
-    x = np.arctan2(-m12, m11)
-    return np.stack([z, y, x], axis=-1)
-
-
-def _axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
-    c, s = np.cos(angle), np.sin(angle)
-    one, zero = np.ones_like(angle), np.zeros_like(angle)
-    if axis == 0:
-        rows = [[one, zero, zero], [zero, c, -s], [zero, s, c]]
-    elif axis == 1:
-        rows = [[c, zero, s], [zero, one, zero], [-s, zero, c]]
-    else:
-        rows = [[c, -s, zero], [s, c, zero], [zero, zero, one]]
-    return np.stack([np.stack(r, -1) for r in rows], -2)
 
 
 def _depth_first(parents: np.ndarray) -> list[int]:
@@ -224,7 +178,7 @@ def write_bvh(
     for j in np.flatnonzero(~has_child):
         ends.setdefault(int(j), 0.5 * offsets[j])
 
-    rotations = quaternion_to_matrix(quats)  # (T, J, 3, 3)
+    rotations = quat_to_matrix(quats)  # (T, J, 3, 3)
     offsets = offsets.copy()
     if camera_to_y_up:
         rotations = _C_Y_UP @ rotations @ _C_Y_UP
@@ -437,21 +391,41 @@ def read_bvh(path: str | os.PathLike[str]) -> Bvh:
     )
 
 
-def bvh_forward_kinematics(
+def bvh_world_transforms(
     parents: np.ndarray,
     offsets: np.ndarray,
     channels: Sequence[Sequence[str]],
     motion: np.ndarray,
-) -> np.ndarray:
-    """World positions ``(T, J, 3)`` of every joint, in the file's length units.
+    *,
+    scale: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """World positions and rotations of every joint (forward kinematics of a BVH file).
 
     Standard BVH semantics: a joint's local translation is its OFFSET plus its position
-    channels (if any); its local rotation is the product of its rotation channels in the
-    order listed (degrees); ``Rw[j] = Rw[parent] @ R[j]``, ``pw[j] = pw[parent] + Rw[parent] @
-    t[j]``. Motion columns follow joint order, then channel order. Use with :func:`read_bvh`::
+    channels (if any), times ``scale``; its local rotation is the product of its rotation
+    channels in the order listed (degrees), e.g. ``Zrotation Xrotation Yrotation`` gives
+    ``rz @ rx @ ry``; ``Rw[j] = Rw[parent] @ R[j]``, ``pw[j] = pw[parent] + Rw[parent] @ t[j]``.
+    Motion columns follow joint order, then channel order. An End Site (``Bvh.end_sites``)
+    sits at ``pw[j] + Rw[j] @ (scale * offset)`` of its joint j. Use with :func:`read_bvh`::
 
         bvh = read_bvh(p)
-        positions = bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+        positions, rotations = bvh_world_transforms(
+            bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=0.01  # cm -> m
+        )
+
+    Args:
+        parents: ``(J,)`` parent indices, -1 for the root, ``parents[j] < j``.
+        offsets: ``(J, 3)`` OFFSETs, file length units.
+        channels: J tuples of channel names (``"Xposition"`` ... ``"Zrotation"``).
+        motion: ``(T, C)`` channel values (file length units, degrees).
+        scale: metres (or any unit) per file length unit; multiplies every translation.
+
+    Returns:
+        ``positions (T, J, 3)`` in file units times ``scale`` and ``rotations (T, J, 3, 3)``,
+        each joint's frame in the world (``R_world_joint``).
+
+    Raises:
+        ValueError: the motion columns do not match the channels, or ``parents[j] >= j``.
     """
     parents = np.asarray(parents, dtype=np.int64)
     offsets = np.asarray(offsets, dtype=np.float64)
@@ -471,8 +445,9 @@ def bvh_forward_kinematics(
             if name.endswith("position"):
                 trans[:, axis] += motion[:, col]
             else:
-                rot = rot @ _axis_rotation(axis, np.radians(motion[:, col]))
+                rot = rot @ _AXIS_ROTATIONS[axis](np.radians(motion[:, col]))
             col += 1
+        trans *= scale
         p = int(parents[j])
         if p < 0:
             rot_w[j], pos_w[j] = rot, trans
@@ -481,4 +456,22 @@ def bvh_forward_kinematics(
                 raise ValueError("bvh_forward_kinematics: parents[j] must be < j")
             rot_w[j] = rot_w[p] @ rot
             pos_w[j] = pos_w[p] + np.einsum("tab,tb->ta", rot_w[p], trans)
-    return pos_w.transpose(1, 0, 2)
+    return pos_w.transpose(1, 0, 2), rot_w.transpose(1, 0, 2, 3)
+
+
+def bvh_forward_kinematics(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    channels: Sequence[Sequence[str]],
+    motion: np.ndarray,
+    *,
+    scale: float = 1.0,
+) -> np.ndarray:
+    """World positions ``(T, J, 3)`` of every joint, in the file's length units times ``scale``.
+
+    The positions of :func:`bvh_world_transforms` (see there for the conventions)::
+
+        bvh = read_bvh(p)
+        positions = bvh_forward_kinematics(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+    """
+    return bvh_world_transforms(parents, offsets, channels, motion, scale=scale)[0]

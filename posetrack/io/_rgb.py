@@ -19,6 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from ._atomic import atomic_write_bytes
 from ._errors import InputError
 
 VIDEO_EXTENSIONS = (".mp4", ".avi", ".mkv", ".mov", ".webm", ".m4v", ".mpg", ".mpeg")
@@ -53,6 +54,33 @@ def read_rgb(path: str | os.PathLike[str]) -> np.ndarray:
     if image is None or image.size == 0:
         raise InputError(path, "image data", f"{data.size} bytes", "is not a readable image")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def write_rgb(path: str | os.PathLike[str], image: np.ndarray) -> None:
+    """Write one colour image, atomically (the inverse of :func:`read_rgb`).
+
+    Args:
+        path: destination; the format follows its extension (``.png`` lossless, ``.jpg``, ...).
+        image: ``uint8 (H, W, 3)`` RGB (not OpenCV's BGR).
+
+    Raises:
+        ValueError: not a non-empty ``uint8 (H, W, 3)`` array, or an extension OpenCV cannot
+            encode.
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or image.size == 0:
+        raise ValueError(
+            f"write_rgb: image must be a non-empty uint8 (H, W, 3) array, got {image.dtype} "
+            f"{image.shape}"
+        )
+    suffix = Path(path).suffix
+    try:
+        ok, encoded = cv2.imencode(suffix, cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise ValueError(f"write_rgb: OpenCV cannot encode {suffix!r} images ({path})")
+    atomic_write_bytes(path, encoded.tobytes())
 
 
 class RgbFrames(Sequence[np.ndarray]):

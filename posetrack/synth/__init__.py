@@ -12,10 +12,6 @@ Quick use::
     posetrack.synth.save(seq, "recordings/box0")
 """
 
-from ._bvh import BvhClip as BvhClip
-from ._bvh import bvh_forward_kinematics as bvh_forward_kinematics
-from ._bvh import parse_bvh as parse_bvh
-from ._bvh import read_bvh as read_bvh
 from ._detector import DetectorConfig as DetectorConfig
 from ._detector import simulate_detector as simulate_detector
 from ._generate import SyntheticSequence as SyntheticSequence
@@ -29,26 +25,20 @@ from ._sensor import ideal_sensor as ideal_sensor
 from ._sensor import projector_shadow as projector_shadow
 from ._sensor import simulate_sensor as simulate_sensor
 from ._skeleton import KEYPOINT_NAMES as KEYPOINT_NAMES
-from ._write import openpose_json as openpose_json
 from ._write import save as save
 
 __all__ = [
     "MOTIONS",
     "KEYPOINT_NAMES",
-    "BvhClip",
     "DetectorConfig",
     "SensorConfig",
     "SyntheticSequence",
-    "bvh_forward_kinematics",
     "data_root",
     "generate",
     "ideal_sensor",
     "list_real_motions",
     "load_markers",
-    "openpose_json",
-    "parse_bvh",
     "projector_shadow",
-    "read_bvh",
     "save",
     "simulate_detector",
     "simulate_sensor",

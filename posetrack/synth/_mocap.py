@@ -19,22 +19,23 @@ from typing import Any
 
 import numpy as np
 
-from ._bvh import bvh_forward_kinematics, read_bvh
-from ._motion import MotionClip, ground
-from ._skeleton import SEG, SEGMENTS, Subject
-from ._so3 import (
+from posetrack._so3 import (
     align_two,
     axis_angle,
     frame_from_axes,
-    from_quat,
     hemisphere_align,
+    matrix_to_quat,
     min_rotation,
     normalize,
+    quat_to_matrix,
     ry,
     rz,
     slerp,
-    to_quat,
 )
+from posetrack.io import bvh_world_transforms, read_bvh
+
+from ._motion import MotionClip, ground
+from ._skeleton import SEG, SEGMENTS, Subject
 
 CMU_UNIT_M = 0.056444
 """One CMU BVH length unit in metres (README of cmu-mocap-bvh-subject131)."""
@@ -55,7 +56,7 @@ _UTK = {"pelvis": 0, "spine": 1, "neck": 2, "head": 3, "shoulder_l": 4, "elbow_l
 _CMU = {"hip_l": "LeftHip", "hip_r": "RightHip", "knee_l": "LeftKnee", "knee_r": "RightKnee",
         "ankle_l": "LeftAnkle", "ankle_r": "RightAnkle", "toe_l": "LeftToe",
         "toe_r": "RightToe", "spine": "Chest", "neck": "Neck", "head_base": "Head",
-        "head": "Head_end", "shoulder_l": "LeftShoulder", "shoulder_r": "RightShoulder",
+        "shoulder_l": "LeftShoulder", "shoulder_r": "RightShoulder",
         "elbow_l": "LeftElbow", "elbow_r": "RightElbow", "wrist_l": "LeftWrist",
         "wrist_r": "RightWrist", "hand_l": "LFingers", "hand_r": "RFingers"}
 
@@ -197,13 +198,19 @@ def load_markers(name: str) -> tuple[dict[str, np.ndarray], float, dict[str, Any
         path = root / _CMU_DIR / f"{rest}.bvh"
         if not path.is_file():
             raise FileNotFoundError(f"CMU BVH file not found: {path}")
-        clip = read_bvh(path)
-        pos, rot = bvh_forward_kinematics(clip, scale=CMU_UNIT_M)
-        m = {k: pos[:, clip.index(v)] for k, v in _CMU.items()}
+        bvh = read_bvh(path)
+        pos, rot = bvh_world_transforms(
+            bvh.parents, bvh.offsets, bvh.channels, bvh.motion, scale=CMU_UNIT_M
+        )
+        m = {k: pos[:, bvh.names.index(v)] for k, v in _CMU.items()}
+        head = bvh.names.index("Head")
+        # Top of the head: the Head joint's End Site, a fixed offset in the Head's frame.
+        top = np.broadcast_to(bvh.end_sites[head] * CMU_UNIT_M, (len(pos), 3))
+        m["head"] = pos[:, head] + np.einsum("fij,fj->fi", rot[:, head], top)
         m["pelvis"] = 0.5 * (m["hip_l"] + m["hip_r"])
         # The head's own frame gives its facing (BVH rest pose faces +z).
-        m["head_fwd"] = rot[:, clip.index("Head")] @ np.array([0.0, 0.0, 1.0])
-        fps = clip.fps
+        m["head_fwd"] = rot[:, head] @ np.array([0.0, 0.0, 1.0])
+        fps = 1.0 / bvh.frame_time
         info.update(file=str(path), source_fps=fps, kinect=False)
         return m, fps, info
     if kind == "msr":
@@ -301,8 +308,8 @@ def retarget(markers: dict[str, np.ndarray], subject: Subject, *, level_feet: bo
     R[:, SEG["chest"]] = frame_from_axes(m["neck"] - m["spine"],
                                          m["shoulder_l"] - m["shoulder_r"],
                                          primary_axis=1, hint_axis=0)
-    qp, qc = to_quat(R[:, SEG["pelvis"]]), to_quat(R[:, SEG["chest"]])
-    R[:, SEG["abdomen"]] = from_quat(slerp(qp, qc, np.full(N, 0.5)))
+    qp, qc = matrix_to_quat(R[:, SEG["pelvis"]]), matrix_to_quat(R[:, SEG["chest"]])
+    R[:, SEG["abdomen"]] = quat_to_matrix(slerp(qp, qc, np.full(N, 0.5)))
     Rc = R[:, SEG["chest"]]
     head_base = m.get("head_base", m["head"])
     neck_dir = head_base - m["neck"]
@@ -376,21 +383,21 @@ def retarget(markers: dict[str, np.ndarray], subject: Subject, *, level_feet: bo
 
 def _resample_rotations(R: np.ndarray, src_fps: float, times: np.ndarray) -> np.ndarray:
     """Slerp (N, S, 3, 3) rotations sampled at ``src_fps`` to arbitrary ``times`` (s)."""
-    q = hemisphere_align(to_quat(R), axis=0)
+    q = hemisphere_align(matrix_to_quat(R), axis=0)
     x = times * src_fps
     i0 = np.clip(np.floor(x).astype(int), 0, R.shape[0] - 1)
     i1 = np.clip(i0 + 1, 0, R.shape[0] - 1)
     f = np.clip(x - i0, 0.0, 1.0)
     qi = slerp(q[i0], q[i1], np.broadcast_to(f[:, None], q[i0].shape[:-1]))
-    return from_quat(qi)
+    return quat_to_matrix(qi)
 
 
 def _smooth_rotations(R: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian smoothing of rotations over time (on sign-aligned quaternions)."""
     if sigma <= 0:
         return R
-    q = hemisphere_align(to_quat(R), axis=0)
-    return from_quat(_gauss_smooth(q, sigma))
+    q = hemisphere_align(matrix_to_quat(R), axis=0)
+    return quat_to_matrix(_gauss_smooth(q, sigma))
 
 
 def real_motion(name: str, subject: Subject, *, n_frames: int, fps: float,

@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
+from posetrack._so3 import min_rotation, normalize, rx, ry, rz
+
 from ._skeleton import SEG, SEGMENTS, Subject, forward_kinematics, local_to_global
-from ._so3 import min_rotation, normalize, rx, ry, rz
 
 MOTIONS: tuple[str, ...] = (
     "walk", "walk_across", "wave", "squat", "box", "reach", "turn", "idle",

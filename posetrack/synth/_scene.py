@@ -13,10 +13,10 @@ import dataclasses
 import numpy as np
 
 from posetrack._camera import Intrinsics
+from posetrack._so3 import rx, ry, rz
 
 from ._motion import MotionClip
 from ._skeleton import SEG, Subject, forward_kinematics, keypoints_world
-from ._so3 import rx, ry, rz
 
 LABEL_NONE, LABEL_FLOOR, LABEL_WALL, LABEL_SIDE_WALL = 0, 1, 2, 3
 BODY_LABEL0 = 8
