@@ -27,6 +27,7 @@ import numpy as np
 
 from .. import _body as body
 from .._camera import Intrinsics
+from .._so3 import quat_normalize
 from .._tracker import STATUS_NAMES, TrackResult
 from ..io import MARKER_NAME, atomic_dir, write_bvh, write_easymocap, write_poses_npz
 from ._overlay import write_overlay
@@ -78,14 +79,6 @@ class BvhMotion(NamedTuple):
     """Leaf joint -> End Site offset (metres): wrists, ankles, top of the head."""
 
 
-def _quat_normalize(q: np.ndarray) -> np.ndarray:
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    # A zero quaternion means identity to the body model (quat_normalize); never divide by 0.
-    identity = np.zeros_like(q)
-    identity[..., 0] = 1.0
-    return np.where(norm > 1e-12, q / np.where(norm > 1e-12, norm, 1.0), identity)
-
-
 def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
     """The body model as a BVH skeleton, posed by ``params`` in every frame.
 
@@ -118,7 +111,7 @@ def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
     if not np.isfinite(params).all():
         t, k = (int(i) for i in np.argwhere(~np.isfinite(params))[0])
         raise ValueError(f"bvh_from_params: params[{t}, {k}] = {params[t, k]} is not finite")
-    q = _quat_normalize(params[:, 3:].reshape(len(params), body.NUM_JOINTS, 4))
+    q = quat_normalize(params[:, 3:].reshape(len(params), body.NUM_JOINTS, 4))
     w, x, y, z = np.moveaxis(q, -1, 0)
     local = np.stack([w, x, -y, -z], axis=-1)  # C R C for the joints: q_C q q_C^-1
     # Root: R_root C, i.e. q_root * q_C with q_C = (0, 1, 0, 0).

@@ -53,7 +53,8 @@ class PngHeader:
     color_type: int
 
 
-def _check_scale(scale: float) -> float:
+def check_depth_scale(scale: float) -> float:
+    """``scale`` (sensor units per metre) as a float; ValueError unless positive and finite."""
     scale = float(scale)
     if not math.isfinite(scale) or scale <= 0:
         raise ValueError(f"depth scale must be a positive number of units per metre, got {scale!r}")
@@ -200,7 +201,7 @@ def read_depth(path: str | os.PathLike[str], *, scale: float = 1000.0) -> np.nda
             not 16-bit, not single-channel, corrupt pixel data.
         ValueError: ``scale`` is not a positive finite number.
     """
-    scale = _check_scale(scale)
+    scale = check_depth_scale(scale)
     path = Path(path)
     data = _read_bytes(path)
     header = _parse_header(path, data[:33], len(data))
@@ -234,7 +235,7 @@ def write_depth_png(
     Raises:
         ValueError: wrong shape, +inf, or a depth beyond the 16-bit range (65535 / scale m).
     """
-    scale = _check_scale(scale)
+    scale = check_depth_scale(scale)
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim != 2 or depth.size == 0:
         raise ValueError(f"write_depth_png: depth must be a non-empty (H, W) array: {depth.shape}")
@@ -279,7 +280,7 @@ class DepthSequence(Sequence[np.ndarray]):
         """Frame number per frame, ``(T,)``."""
         self.shape = (int(shape[0]), int(shape[1]))
         """``(H, W)`` every frame must have."""
-        self.scale = _check_scale(scale)
+        self.scale = check_depth_scale(scale)
         """Depth units per metre."""
         self._size_source = size_source
 

@@ -140,7 +140,7 @@ def _notes(path: Path, doc: dict, fx: float, fy: float) -> list[str]:
     return notes
 
 
-def _read_intrinsics(path: str | os.PathLike[str]) -> tuple[Intrinsics, str, list[str]]:
+def read_intrinsics_with_layout(path: str | os.PathLike[str]) -> tuple[Intrinsics, str, list[str]]:
     """Parse an intrinsics file: ``(intrinsics, layout name, notes)``."""
     path = Path(path)
     doc = load_json(path, "intrinsics")
@@ -212,7 +212,7 @@ def read_intrinsics_json(path: str | os.PathLike[str]) -> Intrinsics:
             non-zero skew or a bottom row other than [0, 0, 1]; a non-positive focal length or
             size; a principal point outside the image; layouts in one file that disagree.
     """
-    return _read_intrinsics(path)[0]
+    return read_intrinsics_with_layout(path)[0]
 
 
 def write_intrinsics_json(

@@ -11,7 +11,7 @@ from typing import Literal
 import numpy as np
 
 from .._camera import Intrinsics
-from ._depth import DepthSequence, _check_scale, probe_depth_png
+from ._depth import DepthSequence, check_depth_scale, probe_depth_png
 from ._errors import InputError
 from ._frames import (
     IMAGE_EXTENSIONS,
@@ -20,7 +20,7 @@ from ._frames import (
     list_frames,
     pair_frames,
 )
-from ._intrinsics import _read_intrinsics
+from ._intrinsics import read_intrinsics_with_layout
 from ._openpose import AMBIGUOUS_RATIO, read_openpose_json
 from ._rgb import VIDEO_EXTENSIONS, RgbFrames, RgbVideo
 
@@ -112,9 +112,9 @@ def load_recording(
             the intrinsics, keypoint files mixing layouts, a ``person_id`` found in no file,
             colour of another size than depth, a video with another frame count.
     """
-    scale = _check_scale(depth_scale)
+    scale = check_depth_scale(depth_scale)
     intrinsics_path = Path(intrinsics_path)
-    intrinsics, intrinsics_layout, notes = _read_intrinsics(intrinsics_path)
+    intrinsics, intrinsics_layout, notes = read_intrinsics_with_layout(intrinsics_path)
     width, height = intrinsics.width, intrinsics.height
     notes.insert(0, f"intrinsics: {intrinsics_layout} layout, {width}x{height}")
 
