@@ -1,0 +1,38 @@
+"""The seed ranges of the tuning protocol: what is reported, what is tuned on, what tests use.
+
+A default of the tracker may be chosen by looking at ``TUNING_SEEDS`` only; ``REPORT_SEEDS``
+are what ``accuracy.py`` reports and ``TEST_SEEDS`` what the test suite asserts on, so a
+number in the README is never measured on the sequences a default was picked on. The three
+ranges are disjoint (checked on import). See benchmarks/README.md, "Tuning protocol".
+
+A seed of ``posetrack.synth.generate`` fixes everything random in a generated sequence (the
+subject's body, the room, sensor noise, the detector's misses, outliers and left/right swaps,
+the occluders); the motion and the occlusion level are separate arguments.
+
+Plain Python, no imports: benchmarks import it as ``from seeds import ...`` (run as scripts,
+their folder is on ``sys.path``); tests load it by path.
+"""
+
+#: Reported by ``accuracy.py``: the i-th clip gets seed ``REPORT_SEEDS[i]`` (0-17 today).
+REPORT_SEEDS = range(0, 100)
+
+#: The only seeds ``tune.py`` evaluates; the shipped defaults were tuned on 100-102.
+TUNING_SEEDS = range(100, 200)
+
+#: Seeds the test suite's accuracy assertions use (``tests/test_paper_claim.py``: 500-507).
+TEST_SEEDS = range(500, 600)
+
+RANGES = {"REPORT_SEEDS": REPORT_SEEDS, "TUNING_SEEDS": TUNING_SEEDS, "TEST_SEEDS": TEST_SEEDS}
+
+
+def check_disjoint() -> None:
+    """Raise ``ValueError`` naming the two ranges that share a seed, if any do."""
+    names = list(RANGES)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            shared = set(RANGES[a]) & set(RANGES[b])
+            if shared:
+                raise ValueError(f"seed ranges {a} and {b} overlap: {sorted(shared)[:5]} ...")
+
+
+check_disjoint()

@@ -1,0 +1,74 @@
+"""The tuning protocol's seed ranges (benchmarks/seeds.py): reported, tuning and test seeds never
+overlap, accuracy.py reports only reported seeds, tune.py refuses every other seed, and the
+tuning clips are not the reported ones. No tracking: these run in about a second."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def load(name: str):
+    """Import benchmarks/<name>.py (not a package) with its folder on sys.path, as when the
+    script runs (``from seeds import ...``)."""
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        spec = importlib.util.spec_from_file_location(
+            f"benchmarks_{name}", BENCHMARKS / f"{name}.py"
+        )
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    return module
+
+
+@pytest.fixture(scope="module")
+def seeds():
+    return load("seeds")
+
+
+def test_seed_ranges_are_disjoint(seeds):
+    names = list(seeds.RANGES)
+    assert names == ["REPORT_SEEDS", "TUNING_SEEDS", "TEST_SEEDS"]
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            assert not set(seeds.RANGES[a]) & set(seeds.RANGES[b]), (a, b)
+    seeds.check_disjoint()
+
+
+def test_overlapping_ranges_are_refused(seeds, monkeypatch):
+    monkeypatch.setitem(seeds.RANGES, "TEST_SEEDS", range(95, 105))
+    with pytest.raises(ValueError, match="REPORT_SEEDS and TUNING_SEEDS|overlap"):
+        seeds.check_disjoint()
+
+
+def test_accuracy_benchmark_reports_only_report_seeds(seeds):
+    accuracy = load("accuracy")
+    for quick in (False, True):
+        pairs = accuracy.sequences(quick)
+        assert pairs, quick
+        used = [s for _, s in pairs]
+        assert all(s in seeds.REPORT_SEEDS for s in used), used
+        assert len(set(used)) == len(used), "one seed per clip"
+
+
+def test_tune_refuses_every_seed_outside_the_tuning_range(seeds):
+    tune = load("tune")
+    tune.check_seeds([seeds.TUNING_SEEDS[0], seeds.TUNING_SEEDS[-1]])
+    for bad in (seeds.REPORT_SEEDS[0], 17, seeds.TEST_SEEDS[0], seeds.TUNING_SEEDS[-1] + 1):
+        with pytest.raises(ValueError, match="not tuning seeds"):
+            tune.check_seeds([seeds.TUNING_SEEDS[0], bad])
+    for quick in (False, True):
+        assert all(s in seeds.TUNING_SEEDS for _, s in tune.sequences(quick))
+    with pytest.raises(ValueError, match="seed-offset"):
+        tune.sequences(False, seed_offset=len(seeds.TUNING_SEEDS))
+    assert tune.main(["--seed-offset", "-1"]) == 2
+
+
+def test_tuning_clips_are_not_the_reported_clips():
+    accuracy, tune = load("accuracy"), load("tune")
+    assert not set(tune.REAL) & set(accuracy.REAL)
