@@ -31,20 +31,22 @@ import numpy as np
 
 from posetrack._camera import Intrinsics
 from posetrack._depthobs import downsample_depth
-from posetrack._machine import machine_info
 from posetrack._render import (
     DEFAULT_SHARPNESS,
     Capsules,
-    _capsule_fields,
-    _prim_params,
-    _ray_grid,
-    _render_one,
-    _soft_terms,
+    capsule_fields,
+    capsule_params,
+    render_and_score,
     render_depth,
 )
-from posetrack._score import _delta_from_sums, _sums, render_and_score
+from posetrack._score import delta_from_sums, delta_sums
+from posetrack.app import machine_info
 
 D_M = 0.15
+#: The soft renderer's depth push-back of missed rays (``posetrack._render``, private there);
+#: only the ``map_allcap`` formulation below needs it, and its ``max_abs_diff_vs_vmap`` column
+#: shows whether this copy still matches the library.
+MISS_PUSHBACK = 0.2
 
 
 def machine() -> dict:
@@ -97,28 +99,44 @@ def observation(k: Intrinsics, rng):
 # Formulations.
 
 
+def ray_grid(k: Intrinsics, dtype) -> tuple[jax.Array, jax.Array]:
+    """Pixel rays (z = 1) as x (1, W) and y (H, 1), the library renderer's layout."""
+    x = (jnp.arange(k.width, dtype=dtype) - jnp.asarray(k.cx, dtype)) / jnp.asarray(k.fx, dtype)
+    y = (jnp.arange(k.height, dtype=dtype) - jnp.asarray(k.cy, dtype)) / jnp.asarray(k.fy, dtype)
+    return x[None, :], y[:, None]
+
+
+def soft_terms(delta, z, sharpness):
+    """Per-capsule ``(log(1 - alpha), soft-min score)`` of the soft renderer (the library's
+    formula: coverage ``alpha = sigmoid(-sharpness delta)``, score ``-sharpness (z +
+    MISS_PUSHBACK softplus(sharpness delta))``)."""
+    sd = sharpness * delta
+    sp = jax.nn.softplus(sd)
+    return sd - sp, -sharpness * (z + MISS_PUSHBACK * sp)
+
+
 def _score_allcap(x, y, caps, z_d, z_fg, sharpness):
     """One hypothesis, all capsules at once: (P, H, W) intermediates reduced over P."""
-    p = {k: v[:, None, None] for k, v in _prim_params(caps).items()}
-    delta, z = _capsule_fields(x[None], y[None], p)
+    p = {k: v[:, None, None] for k, v in capsule_params(caps).items()}
+    delta, z = capsule_fields(x[None], y[None], p)
     if sharpness is None:
         key = jnp.where(delta < 0.0, z - 1e3, delta)
         depth = jnp.take_along_axis(z, jnp.argmin(key, axis=0)[None], axis=0)[0]
         fg = jnp.any(delta < 0.0, axis=0).astype(z.dtype)
     else:
-        log_nc, score = _soft_terms(delta, z, sharpness)
+        log_nc, score = soft_terms(delta, z, sharpness)
         fg = -jnp.expm1(jnp.sum(log_nc, axis=0))
         depth = jnp.sum(jax.nn.softmax(score, axis=0) * z, axis=0)
-    return _delta_from_sums(*_sums(z_d, z_fg, depth, fg, D_M))
+    return delta_from_sums(*delta_sums(z_d, z_fg, depth, fg, D_M))
 
 
 def make_variant(name: str, k: Intrinsics, sharpness):
     sh = None if sharpness is None else jnp.float32(sharpness)
-    x, y = _ray_grid(k, jnp.float32)
+    x, y = ray_grid(k, jnp.float32)
 
     def one(caps, z_d, z_fg):
-        r_d, r_fg = _render_one(x, y, caps, sh)
-        return _delta_from_sums(*_sums(z_d, z_fg, r_d, r_fg, D_M))
+        r_d, r_fg = render_depth(caps, k, sharpness=sh)  # the library's renderer, one body
+        return delta_from_sums(*delta_sums(z_d, z_fg, r_d, r_fg, D_M))
 
     if name == "vmap":
         return jax.jit(lambda c, zd, zf: jax.vmap(lambda ci: one(ci, zd, zf))(c))

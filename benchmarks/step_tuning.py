@@ -31,12 +31,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import posetrack as pt
+from posetrack import TrackerConfig
+from posetrack._depthobs import tracker_landmarks, tracker_observation
 from posetrack._fit import FitSettings, fit_hypotheses
-from posetrack._machine import machine_info
-from posetrack._score import render_and_score
-from posetrack._step import TrackerConfig, _capsules_batch, _landmarks, observation, split_config
-from posetrack._tracker import _check_frame
-from posetrack.io._atomic import atomic_write_text
+from posetrack._render import render_and_score
+from posetrack._step import hypothesis_capsules
+from posetrack._tracker import check_frame
+from posetrack.app import machine_info
+from posetrack.io import atomic_write_text
 
 FITS = {
     "cholesky, 4 steps (shipped MHT)": FitSettings(max_steps=4),
@@ -62,19 +64,17 @@ def setup():
     tracker.estimate_shape(seq.depth[:15], seq.keypoints2d[:15], seq.confidence[:15])
     tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
     intr = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), seq.intrinsics)
-    depth, kp, conf = _check_frame(
+    depth, kp, conf = check_frame(
         intr, seq.depth[1], seq.keypoints2d[1], seq.confidence[1], 1000.0, "benchmark"
     )
     config = TrackerConfig()
-    static, tunables = split_config(config)
-    from posetrack._step import ConfigView
-
-    view = ConfigView(static, tunables)
-    lm = _landmarks(view, tracker.shape, intr, depth, kp, conf)
-    z_d, z_fg, known, small_intr = observation(
-        view, depth, intr, tracker._floor, tracker._state.best[:3]
+    lm = jax.jit(tracker_landmarks)(config, tracker.shape, intr, depth, kp, conf)
+    # The tracker's floor and pose after frame 0 (Tracker internals: no public accessor).
+    best = tracker._state.best
+    z_d, z_fg, known, small_intr = jax.jit(tracker_observation)(
+        config, depth, intr, tracker._floor, best[:3]
     )
-    return tracker, intr, lm, (z_d, z_fg, known, small_intr)
+    return tracker, intr, lm, best, (z_d, z_fg, known, small_intr)
 
 
 def main(argv=None):
@@ -85,8 +85,8 @@ def main(argv=None):
     args = p.parse_args(argv)
     machine = machine_info()
     print("machine: " + " | ".join(f"{k}: {v}" for k, v in machine.items()), flush=True)
-    tracker, intr, lm, (z_d, z_fg, known, small_intr) = setup()
-    shape, best = tracker.shape, tracker._state.best
+    tracker, intr, lm, best, (z_d, z_fg, known, small_intr) = setup()
+    shape = tracker.shape
     rng = np.random.default_rng(0)
     records = []
     for n in args.ns:
@@ -94,7 +94,7 @@ def main(argv=None):
             np.asarray(best)[None] + rng.normal(0.0, 0.02, (n, 43)), jnp.float32
         )  # hypotheses a few centimetres / degrees apart, as in tracking
         masks = jnp.asarray(rng.random((n, 18)) < 0.8)
-        caps = _capsules_batch(shape, starts)
+        caps = hypothesis_capsules(shape, starts)
         calls = {}
         for name, settings in FITS.items():
             f = jax.jit(fit_hypotheses, static_argnames="settings")
