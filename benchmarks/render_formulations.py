@@ -36,17 +36,15 @@ from posetrack._render import (
     Capsules,
     capsule_fields,
     capsule_params,
+    ray_grid,
     render_and_score,
     render_depth,
+    soft_terms,
 )
 from posetrack._score import delta_from_sums, delta_sums
 from posetrack.app import machine_info
 
 D_M = 0.15
-#: The soft renderer's depth push-back of missed rays (``posetrack._render``, private there);
-#: only the ``map_allcap`` formulation below needs it, and its ``max_abs_diff_vs_vmap`` column
-#: shows whether this copy still matches the library.
-MISS_PUSHBACK = 0.2
 
 
 def machine() -> dict:
@@ -97,22 +95,6 @@ def observation(k: Intrinsics, rng):
 
 # ---------------------------------------------------------------------------------------------
 # Formulations.
-
-
-def ray_grid(k: Intrinsics, dtype) -> tuple[jax.Array, jax.Array]:
-    """Pixel rays (z = 1) as x (1, W) and y (H, 1), the library renderer's layout."""
-    x = (jnp.arange(k.width, dtype=dtype) - jnp.asarray(k.cx, dtype)) / jnp.asarray(k.fx, dtype)
-    y = (jnp.arange(k.height, dtype=dtype) - jnp.asarray(k.cy, dtype)) / jnp.asarray(k.fy, dtype)
-    return x[None, :], y[:, None]
-
-
-def soft_terms(delta, z, sharpness):
-    """Per-capsule ``(log(1 - alpha), soft-min score)`` of the soft renderer (the library's
-    formula: coverage ``alpha = sigmoid(-sharpness delta)``, score ``-sharpness (z +
-    MISS_PUSHBACK softplus(sharpness delta))``)."""
-    sd = sharpness * delta
-    sp = jax.nn.softplus(sd)
-    return sd - sp, -sharpness * (z + MISS_PUSHBACK * sp)
 
 
 def _score_allcap(x, y, caps, z_d, z_fg, sharpness):

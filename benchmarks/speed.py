@@ -106,6 +106,7 @@ from posetrack._depthobs import tracker_landmarks, tracker_observation
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose, fit_problem, fit_residuals
 from posetrack._residuals import ResidualSettings, landmark_residuals
 from posetrack._select import landmark_subsets
+from posetrack._so3 import quat_to_matrix
 from posetrack._step import (
     TrackState,
     consensus_refit,
@@ -171,33 +172,6 @@ def np_keypoint_offsets(shape: dict[str, float]) -> np.ndarray:
     )  # fmt: skip
 
 
-def np_quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations of (n, 4) wxyz quaternions of any norm (0 -> identity).
-
-    Written for speed on tiny arrays (one NumPy call per matrix entry, no ``np.stack``): the
-    scipy baseline calls the forward model ~400 times per fit.
-    """
-    sq = np.einsum("ij,ij->i", q, q)
-    ok = sq > 1e-12
-    q = q / np.sqrt(np.where(ok, sq, 1.0))[:, None]
-    if not ok.all():
-        q[~ok] = (1.0, 0.0, 0.0, 0.0)
-    w, x, y, z = q.T
-    R = np.empty((len(q), 3, 3))
-    xx, yy, zz, xy, xz, yz = x * x, y * y, z * z, x * y, x * z, y * z
-    wx, wy, wz = w * x, w * y, w * z
-    R[:, 0, 0] = 1.0 - 2.0 * (yy + zz)
-    R[:, 0, 1] = 2.0 * (xy - wz)
-    R[:, 0, 2] = 2.0 * (xz + wy)
-    R[:, 1, 0] = 2.0 * (xy + wz)
-    R[:, 1, 1] = 1.0 - 2.0 * (xx + zz)
-    R[:, 1, 2] = 2.0 * (yz - wx)
-    R[:, 2, 0] = 2.0 * (xz - wy)
-    R[:, 2, 1] = 2.0 * (yz + wx)
-    R[:, 2, 2] = 1.0 - 2.0 * (xx + yy)
-    return R
-
-
 _PARENTS = np.asarray(JOINT_PARENTS)
 _KP_FRAMES = np.asarray(KEYPOINT_FRAMES)
 # The kinematic tree by depth (root; its children; their children): one batched matmul per level.
@@ -213,7 +187,7 @@ def np_keypoints(params: np.ndarray, joint_offs: np.ndarray, kp_offs: np.ndarray
     ``joint_offs`` / ``kp_offs`` from :func:`np_joint_offsets` / :func:`np_keypoint_offsets`.
     """
     params = np.asarray(params, np.float64)
-    R = np_quat_to_matrix(params[3:].reshape(10, 4))
+    R = quat_to_matrix(params[3:].reshape(10, 4))  # NumPy, any norm (0 -> identity)
     Rw = np.empty((10, 3, 3))
     c = np.empty((10, 3))
     Rw[0], c[0] = R[0], params[:3]
@@ -521,11 +495,11 @@ class Runner:
         # Tracker internals (no public accessor): the initialisation alone, without a first
         # step (which would compile before ``measure`` times it), and the state and floor it
         # leaves for the jitted step.
-        ok = self.tracker._initialize(frames.depth[0], frames.kp[0], frames.conf[0])
+        ok = self.tracker.initialize(frames.depth[0], frames.kp[0], frames.conf[0])
         if not ok:
             raise RuntimeError("benchmark sequence: initialisation failed on frame 0")
-        self.state: TrackState = self.tracker._state
-        self.floor = self.tracker._floor
+        self.state: TrackState = self.tracker.state
+        self.floor = self.tracker.floor
         self.max_frames = max_frames
         self.times: list[float] = []
         self.first_call_s = float("nan")
@@ -816,7 +790,7 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     """What ``Tracker.update`` and ``Tracker.run`` add to the step, per frame.
 
     Paired within each call, so robust to a neighbour's load: the Tracker records the wall time
-    of its own ``step`` call + ``block_until_ready`` (``_step_times``); the overhead is the
+    of its own ``step`` call + ``block_until_ready`` (``step_times``); the overhead is the
     public call's wall time minus that (input checks, uint16 -> float32 conversion, status
     logic and its host syncs; in ``run`` also the per-frame conversions of the results).
     """
@@ -829,16 +803,16 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
         t0 = time.perf_counter()
         tr.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
         walls.append(time.perf_counter() - t0)
-    update_over = np.asarray(walls) - np.asarray(tr._step_times[-len(walls) :])
+    update_over = np.asarray(walls) - np.asarray(tr.step_times[-len(walls) :])
     # run() on frames 1.. of a tracker initialised on frame 0: the one-off initialisation
     # (pose from landmarks, 60-step fit, floor RANSAC) is not a per-frame cost.
     tr2 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape)
     tr2.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
-    n_before = len(tr2._step_times)
+    n_before = len(tr2.step_times)
     t0 = time.perf_counter()
     tr2.run(seq.depth[1:T], seq.keypoints2d[1:T], seq.confidence[1:T], progress=None)
     run_s = time.perf_counter() - t0
-    run_steps = tr2._step_times[n_before:]
+    run_steps = tr2.step_times[n_before:]
     return {
         "update_ms": round(1e3 * float(np.median(walls)), 3),
         "update_overhead_ms": round(1e3 * float(np.median(update_over)), 3),

@@ -70,9 +70,9 @@ def setup():
     config = TrackerConfig()
     lm = jax.jit(tracker_landmarks)(config, tracker.shape, intr, depth, kp, conf)
     # The tracker's floor and pose after frame 0 (Tracker internals: no public accessor).
-    best = tracker._state.best
+    best = tracker.state.best
     z_d, z_fg, known, small_intr = jax.jit(tracker_observation)(
-        config, depth, intr, tracker._floor, best[:3]
+        config, depth, intr, tracker.floor, best[:3]
     )
     return tracker, intr, lm, best, (z_d, z_fg, known, small_intr)
 

@@ -108,8 +108,9 @@ def _check_capsules(name: str, caps: Capsules, batch_ndim: int) -> None:
         )
 
 
-def _ray_grid(intrinsics: Intrinsics, dtype) -> tuple[Array, Array]:
-    """Ray x (1, W) and y (H, 1) components (z = 1); separable so broadcasting does the grid."""
+def ray_grid(intrinsics: Intrinsics, dtype) -> tuple[Array, Array]:
+    """Pixel rays of ``intrinsics``: x (1, W) and y (H, 1) components at z = 1, separable so
+    broadcasting does the grid (the layout :func:`capsule_fields` takes)."""
     fx, fy, cx, cy = (
         jnp.asarray(v, dtype) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy)
     )
@@ -216,8 +217,12 @@ def capsule_fields(x: Array, y: Array, p: dict[str, Array]) -> tuple[Array, Arra
     return delta, z
 
 
-def _soft_terms(delta: Array, z: Array, sharpness: Array) -> tuple[Array, Array]:
-    """Per-capsule ``(log(1 - alpha), score)`` of the soft union and the push-back soft-min."""
+def soft_terms(delta: Array, z: Array, sharpness: Array) -> tuple[Array, Array]:
+    """Per-capsule ``(log(1 - alpha), score)`` of the soft union and the push-back soft-min.
+
+    ``alpha = sigmoid(-sharpness delta)`` is the coverage; ``score = -sharpness (z +
+    _MISS_PUSHBACK softplus(sharpness delta))`` the soft-min logit (module docstring). Inputs
+    from :func:`capsule_fields`; any shape, broadcast together."""
     sd = sharpness * delta
     sp = jax.nn.softplus(sd)  # = -log(alpha); softplus(-sd) = sp - sd = -log(1 - alpha)
     return sd - sp, -sharpness * (z + _MISS_PUSHBACK * sp)
@@ -250,7 +255,7 @@ def _acc_add(acc, delta, z, sharpness):
         better = key_k < key
         return (jnp.where(better, key_k, key), jnp.where(better, z, depth), hit | (delta < 0.0))
     log_nc, m, s, sz = acc
-    lnc_k, sc_k = _soft_terms(delta, z, sharpness)
+    lnc_k, sc_k = soft_terms(delta, z, sharpness)
     # Online softmax with one exp: e = exp(-|sc - m|) rescales whichever side is smaller.
     e = jnp.exp(-jnp.abs(sc_k - m))
     new_max = sc_k > m
@@ -274,7 +279,7 @@ def _acc_add_group(acc, delta, z, sharpness):
             hit | jnp.any(delta < 0.0, axis=0),
         )
     log_nc, m, s, sz = acc
-    lnc_g, sc_g = _soft_terms(delta, z, sharpness)
+    lnc_g, sc_g = soft_terms(delta, z, sharpness)
     m_new = jnp.maximum(m, jnp.max(sc_g, axis=0))
     e_old = jnp.exp(m - m_new)
     e_g = jnp.exp(sc_g - m_new[None])
@@ -344,7 +349,7 @@ def render_depth(
     """
     _check_capsules("render_depth", capsules, 0)
     dtype = capsules.a.dtype
-    x, y = _ray_grid(intrinsics, dtype)
+    x, y = ray_grid(intrinsics, dtype)
     return _render_one(x, y, capsules, _as_sharpness(sharpness, dtype))
 
 
@@ -365,7 +370,7 @@ def render_depth_batch(
     """
     _check_capsules("render_depth_batch", capsules, 1)
     dtype = capsules.a.dtype
-    x, y = _ray_grid(intrinsics, dtype)
+    x, y = ray_grid(intrinsics, dtype)
     sharpness = _as_sharpness(sharpness, dtype)
     return jax.lax.map(lambda c: _render_one(x, y, c, sharpness), capsules, batch_size=batch_size)
 
@@ -580,7 +585,7 @@ def render_and_score(
             group=group,
         )  # fmt: skip
         return jax.vmap(score)(capsules) if vectorize else jax.lax.map(score, capsules)
-    x, y = _ray_grid(intrinsics, dtype)
+    x, y = ray_grid(intrinsics, dtype)
     return jax.lax.map(
         lambda c: _score_full(
             x, y, c, z_d, z_fg, sharpness, d_M, None if known is None else jnp.asarray(known, dtype)

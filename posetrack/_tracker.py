@@ -16,6 +16,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from . import _body as body
 from ._camera import Intrinsics
@@ -257,6 +258,29 @@ class Tracker:
     @property
     def initialized(self) -> bool:
         return self._state is not None
+
+    @property
+    def state(self) -> TrackState | None:
+        """The hypotheses carried to the next frame (``None`` before initialisation)."""
+        return self._state
+
+    @property
+    def floor(self) -> Array:
+        """The floor plane (nx, ny, nz, d) in use, metres; ``NO_FLOOR`` when none was found."""
+        return self._floor
+
+    @property
+    def step_times(self) -> list[float]:
+        """Wall seconds of every steady-state step (the first, compiling call excluded)."""
+        return list(self._step_times)
+
+    def initialize(self, depth, keypoints2d, confidence) -> bool:
+        """(Re-)initialise the track from one frame's observations alone, without a tracker
+        step (``update`` does this by itself when needed). Returns whether it succeeded."""
+        depth_m, kp, conf = check_frame(
+            self.intrinsics, depth, keypoints2d, confidence, self.depth_scale, "initialize"
+        )
+        return self._initialize(depth_m, kp, conf)
 
     def _initialize(self, depth_m, kp, conf) -> bool:
         if self.shape is None:
