@@ -13,6 +13,7 @@ where the field is declared:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import equinox as eqx
@@ -47,11 +48,6 @@ BEYOND_THE_PAPER: dict[str, bool] = {
 }
 
 _POSITIVE = ("sigma_g", "sigma_h", "d_hmax", "d_M", "sharpness", "body_range")
-_FLOATS = (
-    "r", "R", "sigma_g", "sigma_h", "d_hmax", "d_M", "sharpness", "body_range",
-    "confidence_threshold", "consensus_distance", "refine_weight", "reseed_margin",
-    "lost_delta", "lost_agreement",
-)  # fmt: skip
 
 
 class TrackerConfig(eqx.Module):
@@ -181,7 +177,9 @@ class TrackerConfig(eqx.Module):
             raise ValueError(f"TrackerConfig.fit must be a FitSettings or None, got {self.fit!r}")
         # Python numbers become floats, so an int (r=0) never changes the traced dtype; arrays
         # (a vmapped sweep over configurations) pass through.
-        for name in _FLOATS:
+        # The traced fields are the non-static ones: the declarations below are the only list.
+        traced = (f.name for f in dataclasses.fields(self) if not f.metadata.get("static"))
+        for name in traced:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 if isinstance(v, (bool, str)) or v is None:
@@ -213,8 +211,7 @@ class TrackerConfig(eqx.Module):
 
     def replace(self, **changes) -> TrackerConfig:
         """A copy with ``changes`` applied (validated like the constructor)."""
-        fields = {f: getattr(self, f) for f in self.__dataclass_fields__}
-        return TrackerConfig(**{**fields, **changes})
+        return dataclasses.replace(self, **changes)
 
     @staticmethod
     def recommended(method: str = "mht_h", **overrides) -> TrackerConfig:
@@ -224,10 +221,7 @@ class TrackerConfig(eqx.Module):
         consensus refit) on. ``posetrack track --method`` uses this."""
         if method == "mht_h":
             return TrackerConfig(**{"method": "mht_h", **overrides})
-        if method not in PAPER_BEST:
-            raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
-        l1 = FitSettings(residuals=ResidualSettings(loss="l1"))
-        return TrackerConfig(**{"method": method, **PAPER_BEST[method], "fit": l1, **overrides})
+        return _paper_best(method, overrides)
 
     @staticmethod
     def paper(method: str, **overrides) -> TrackerConfig:
@@ -244,17 +238,20 @@ class TrackerConfig(eqx.Module):
         ``lost_delta = 1``, since with the floor in the observation a right pose scores
         Delta ~0.9).
         """
-        if method not in PAPER_BEST:
-            raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
-        l1 = FitSettings(residuals=ResidualSettings(loss="l1"))
         # Without floor removal the floor under the feet is part of the observation, so even
         # a right pose has Delta ~0.9 (measured: 0.88-0.91 on the demo's sequence, 0.6 with the
         # floor removed): track loss by Delta (ours, host side) is off; by agreement it stays.
-        paper_only = {**BEYOND_THE_PAPER, "lost_delta": 1.0}
-        return TrackerConfig(
-            **{"method": method, **PAPER_BEST[method], "fit": l1, **paper_only, **overrides}
-        )
+        return _paper_best(method, {**BEYOND_THE_PAPER, "lost_delta": 1.0, **overrides})
 
     def is_paper(self) -> bool:
         """Whether every addition beyond the paper is off."""
         return all(getattr(self, k) == v for k, v in BEYOND_THE_PAPER.items())
+
+
+def _paper_best(method: str, overrides: dict) -> TrackerConfig:
+    """The paper's best (N, r, R) of ``method`` with Eq. (1)'s sum of norms, then
+    ``overrides``."""
+    if method not in PAPER_BEST:
+        raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    l1 = FitSettings(residuals=ResidualSettings(loss="l1"))
+    return TrackerConfig(**{"method": method, **PAPER_BEST[method], "fit": l1, **overrides})

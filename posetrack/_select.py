@@ -117,11 +117,21 @@ def temporal_distance(
     between o_i and the projection of M^h_i,t-1, converted to metres at that keypoint's depth,
     truncated and normalised the same way.
     """
-    d3 = jnp.linalg.norm(landmarks.points3d - previous, axis=-1)
-    m = project(intrinsics, previous)
-    f = jnp.sqrt(intrinsics.fx * intrinsics.fy)
-    d2 = jnp.linalg.norm(m - landmarks.keypoints2d, axis=-1) * jnp.maximum(previous[:, 2], 0.2) / f
+    d3, d2 = landmark_distances(landmarks, previous, intrinsics)
     return jnp.minimum(d3, d_hmax) / d_hmax, jnp.minimum(d2, d_hmax) / d_hmax
+
+
+def landmark_distances(
+    landmarks: Landmarks, points: Float[Array, "kpt 3"], intrinsics: Intrinsics
+) -> tuple[Float[Array, " kpt"], Float[Array, " kpt"]]:
+    """Distance of each landmark from a model keypoint, metres: in 3D (``|O_i - M_i|``) and in
+    the image (pixel distance between o_i and the projection of M_i, converted to metres at
+    M_i's depth, at least 0.2 m)."""
+    d3 = jnp.linalg.norm(landmarks.points3d - points, axis=-1)
+    m = project(intrinsics, points)
+    f = jnp.sqrt(intrinsics.fx * intrinsics.fy)
+    d2 = jnp.linalg.norm(m - landmarks.keypoints2d, axis=-1) * jnp.maximum(points[:, 2], 0.2) / f
+    return d3, d2
 
 
 def gaussian_weight(d: Array, sigma: float) -> Array:
@@ -178,6 +188,8 @@ def landmark_weights(
     N = previous.shape[0]
     F = landmarks.has_depth
     dtype = landmarks.points3d.dtype
+    if config.method == "lvm":
+        return jnp.ones((N, 18), dtype), jnp.ones((N, 18), dtype)
     W = jnp.full((N, 18), 1.0 - config.R, dtype)
     w = jnp.full((N, 18), 1.0 - config.r, dtype)
     if config.method in ("mht_g", "mht_h"):
@@ -206,8 +218,6 @@ def landmark_weights(
         else:
             w2_only = jnp.ones_like(Wh)
         w = jnp.minimum(w, jnp.where(F, L_2D * Wh + (1 - L_2D), w2_only))
-    if config.method == "lvm":
-        W, w = jnp.ones_like(W), jnp.ones_like(w)
     return W, w
 
 

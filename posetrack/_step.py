@@ -19,14 +19,14 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import _body as body
-from ._camera import Intrinsics, project
+from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
 from ._observe import Landmarks
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
-from ._select import landmark_subsets
+from ._select import landmark_distances, landmark_subsets
 
 
 class TrackState(eqx.Module):
@@ -149,12 +149,8 @@ def consensus_refit(
     Returns:
         ``(pose, delta)``: the refit and its Delta if that is not worse, else the winner's.
     """
-    M = body.keypoints(shape, chosen)
     tau = config.consensus_distance
-    d3 = jnp.linalg.norm(M - landmarks.points3d, axis=-1)
-    m = project(intrinsics, M)
-    f = jnp.sqrt(intrinsics.fx * intrinsics.fy)
-    d2 = jnp.linalg.norm(m - landmarks.keypoints2d, axis=-1) * jnp.maximum(M[:, 2], 0.2) / f
+    d3, d2 = landmark_distances(landmarks, body.keypoints(shape, chosen), intrinsics)
     use3d = landmarks.has_depth & (d3 < tau)
     use2d = landmarks.detected & (d2 < tau)
     refit = fit_pose(

@@ -56,16 +56,22 @@ class Progress:
         self.stream.flush()
 
     def _draw(self, n: int, elapsed: float) -> None:
-        rate = n / elapsed if elapsed > 0 else 0.0
-        if self.total:
-            width = 24
-            filled = int(width * n / max(self.total, 1))
-            bar = f"{n:>5}/{self.total} [{'#' * filled}{' ' * (width - filled)}]"
-        else:
-            bar = f"{n:>5}"
-        extra = f" {self.postfix}" if self.postfix else ""
-        self.stream.write(f"\r{self.label} {bar} {rate:6.1f} {self.unit}/s{extra}   ")
+        line = _line(self.label, n, self.total, elapsed, self.unit, self.postfix)
+        self.stream.write(line)
         self.stream.flush()
+
+
+def _line(label: str, n: int, total: int | None, elapsed: float, unit: str, postfix: str) -> str:
+    """One redraw: ``\rtracking  42/100 [####  ] 12.3 frames/s postfix``."""
+    rate = n / elapsed if elapsed > 0 else 0.0
+    if total:
+        width = 24
+        filled = int(width * n / max(total, 1))
+        bar = f"{n:>5}/{total} [{'#' * filled}{' ' * (width - filled)}]"
+    else:
+        bar = f"{n:>5}"
+    extra = f" {postfix}" if postfix else ""
+    return f"\r{label} {bar} {rate:6.1f} {unit}/s{extra}   "
 
 
 class ProgressBar:
@@ -90,9 +96,8 @@ class ProgressBar:
         if done < total and now - self._last < 0.1:
             return
         self._last = now
-        bar = Progress((), self.label, total=total, unit=self.unit, stream=self.stream)
-        bar.postfix = postfix
-        bar._draw(done, now - self._start)
+        self.stream.write(_line(self.label, done, total, now - self._start, self.unit, postfix))
+        self.stream.flush()
         if done >= total:
             self.stream.write("\n")
             self.stream.flush()
