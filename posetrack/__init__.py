@@ -16,6 +16,11 @@ generator that is not the tracker's model), ``posetrack.detect`` (optional 2D de
 from . import app as app
 from . import io as io
 from . import synth as synth
+from ._associate import FollowSettings as FollowSettings
+from ._associate import choose_person as choose_person
+from ._associate import detection_score as detection_score
+from ._associate import lift_candidates as lift_candidates
+from ._associate import match_costs as match_costs
 from ._body import BODY_JOINTS as BODY_JOINTS
 from ._body import KEYPOINT_NAMES as KEYPOINT_NAMES
 from ._body import NUM_PARAMS as NUM_PARAMS
@@ -41,6 +46,8 @@ from ._init import estimate_shape as estimate_shape
 from ._init import initial_pose as initial_pose
 from ._metrics import Accuracy as Accuracy
 from ._metrics import accuracy as accuracy
+from ._metrics import followed_identity as followed_identity
+from ._metrics import identity_jumps as identity_jumps
 from ._metrics import joint_errors as joint_errors
 from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
@@ -88,8 +95,11 @@ __all__ = [
     "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
+    # which person is followed
+    "FollowSettings", "choose_person", "detection_score", "lift_candidates", "match_costs",
     # metrics
-    "Accuracy", "accuracy", "joint_errors", "naive_lifting", "success_curve",
+    "Accuracy", "accuracy", "followed_identity", "identity_jumps", "joint_errors",
+    "naive_lifting", "success_curve",
     # result files
     "SavedResults", "bvh_from_result", "save_results",
 ]  # fmt: skip

@@ -11,6 +11,7 @@ keypoints 1..13), as the face keypoints have no motion-capture counterpart in mo
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -109,3 +110,33 @@ def naive_lifting(points3d: np.ndarray, has_depth: np.ndarray, *, hold: bool = T
             last = np.where(F[t][:, None], P[t], last)
             P[t] = last
     return P
+
+
+def followed_identity(estimate: np.ndarray, people: np.ndarray) -> np.ndarray:
+    """Whom the estimate follows in each frame: the index of the nearest person's truth.
+
+    Args:
+        estimate: (frame, 18, 3) estimated keypoints, metres; NaN = not estimated.
+        people: (frame, Q, 18, 3) ground truth of the Q people in the scene (the followed one
+            first, say), metres; NaN rows for a person not in the scene that frame.
+
+    Returns:
+        (frame,) int: argmin over people of the mean distance over the body joints; -1 where
+        the frame has no estimate.
+    """
+    est = np.asarray(estimate, np.float64)[:, None, list(BODY_JOINTS)]
+    truth = np.asarray(people, np.float64)[:, :, list(BODY_JOINTS)]
+    with warnings.catch_warnings():  # all-NaN rows (not estimated, person absent) give NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        dist = np.nanmean(np.linalg.norm(est - truth, axis=-1), axis=-1)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    ident = dist.argmin(axis=1)
+    return np.where(np.isfinite(dist).any(axis=1), ident, -1)
+
+
+def identity_jumps(identity: np.ndarray) -> int:
+    """How often the followed person changes: consecutive estimated frames (frames without
+    an estimate, ``-1``, skipped) whose identities (:func:`followed_identity`) differ."""
+    ident = np.asarray(identity)
+    ident = ident[ident >= 0]
+    return int(np.sum(ident[1:] != ident[:-1]))

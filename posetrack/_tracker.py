@@ -19,6 +19,19 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _body as body
+from ._associate import (
+    Candidates,
+    FollowSettings,
+    PersonRule,
+    choose_person,
+    detection_score,
+    lift_candidates,
+    match_costs,
+    other_people_mask,
+    quiet_nanmedian,
+    segment_lengths,
+    shape_mismatch,
+)
 from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
@@ -92,6 +105,17 @@ class TrackResult:
     """Seconds spent compiling (first calls of the jitted functions)."""
     ms_per_frame: float
     """Median wall time of a steady-state tracker step, milliseconds."""
+    person_index: np.ndarray
+    """(T,) int: index into each frame's list of people of the detection the tracker followed;
+    -1 where none was (nobody detected, or only other people: the frame is then 'lost')."""
+    num_people: np.ndarray
+    """(T,) int: people detected in each frame."""
+
+    @property
+    def others_ignored(self) -> int:
+        """Frames in which at least one detected person other than the followed one was
+        ignored."""
+        return int(np.sum(self.num_people - (self.person_index >= 0) > 0))
 
     @property
     def status_names(self) -> list[str]:
@@ -135,25 +159,7 @@ def check_frame(
     Raises:
         ValueError: naming ``where``, the field and the offending shape or dtype.
     """
-    depth = np.asarray(depth)
-    if depth.size == 0:
-        raise ValueError(f"{where}: depth is empty (shape {depth.shape})")
-    if depth.ndim != 2:
-        raise ValueError(f"{where}: depth must be a 2D (H, W) array, got shape {depth.shape}")
-    if depth.shape != intrinsics.shape:
-        raise ValueError(
-            f"{where}: depth shape {depth.shape} does not match the intrinsics' image "
-            f"{intrinsics.height}x{intrinsics.width} (H x W)"
-        )
-    if depth.dtype == np.uint16:
-        depth_m = depth.astype(np.float32) / np.float32(depth_scale)
-    elif np.issubdtype(depth.dtype, np.floating):
-        depth_m = depth.astype(np.float32)
-    else:
-        raise ValueError(
-            f"{where}: depth dtype must be uint16 (sensor units, see depth_scale) or float "
-            f"(metres), got {depth.dtype}"
-        )
+    depth_m = check_depth(intrinsics, depth, depth_scale, where)
     kp = np.asarray(keypoints2d, dtype=np.float64) if keypoints2d is not None else None
     if kp is None or kp.shape != (18, 2):
         raise ValueError(
@@ -171,6 +177,55 @@ def check_frame(
     return depth_m, kp.astype(np.float32), conf.astype(np.float32)
 
 
+def check_people(keypoints2d, confidence, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Validate one frame's detections: one person ``(18, 2)`` / ``(18,)`` or P people
+    ``(P, 18, 2)`` / ``(P, 18)`` (P may be 0). Returns ``(P, 18, 2)``, ``(P, 18)`` float32;
+    non-finite keypoints become missing.
+
+    Raises:
+        ValueError: naming ``where``, the field and the offending shape.
+    """
+    kp = np.asarray(keypoints2d, dtype=np.float64) if keypoints2d is not None else None
+    conf = np.asarray(confidence, dtype=np.float64) if confidence is not None else None
+    if kp is None or kp.ndim not in (2, 3) or kp.shape[-2:] != (18, 2):
+        raise ValueError(
+            f"{where}: keypoints2d must have shape (18, 2) for one person or (P, 18, 2) for P "
+            f"people (COCO-18 pixels), got {None if kp is None else kp.shape}"
+        )
+    if conf is None or conf.shape != kp.shape[:-1]:
+        raise ValueError(
+            f"{where}: confidence must have shape {kp.shape[:-1]} to match keypoints2d "
+            f"{kp.shape}, got {None if conf is None else conf.shape}"
+        )
+    kp, conf = kp.reshape(-1, 18, 2), conf.reshape(-1, 18)
+    bad = ~np.isfinite(kp).all(axis=-1) | ~np.isfinite(conf)
+    conf = np.where(bad, 0.0, conf)
+    kp = np.where(bad[..., None], 0.0, kp)
+    return kp.astype(np.float32), conf.astype(np.float32)
+
+
+def check_depth(intrinsics: Intrinsics, depth, depth_scale: float, where: str) -> np.ndarray:
+    """Validate one depth image and convert it to float32 metres (see :func:`check_frame`)."""
+    depth = np.asarray(depth)
+    if depth.size == 0:
+        raise ValueError(f"{where}: depth is empty (shape {depth.shape})")
+    if depth.ndim != 2:
+        raise ValueError(f"{where}: depth must be a 2D (H, W) array, got shape {depth.shape}")
+    if depth.shape != intrinsics.shape:
+        raise ValueError(
+            f"{where}: depth shape {depth.shape} does not match the intrinsics' image "
+            f"{intrinsics.height}x{intrinsics.width} (H x W)"
+        )
+    if depth.dtype == np.uint16:
+        return depth.astype(np.float32) / np.float32(depth_scale)
+    if np.issubdtype(depth.dtype, np.floating):
+        return depth.astype(np.float32)
+    raise ValueError(
+        f"{where}: depth dtype must be uint16 (sensor units, see depth_scale) or float "
+        f"(metres), got {depth.dtype}"
+    )
+
+
 class Tracker:
     """Track one person through an RGB-D sequence.
 
@@ -182,6 +237,18 @@ class Tracker:
 
     or frame by frame with :meth:`update`. The body dimensions are estimated from the first
     ``config.shape_frames`` frames of :meth:`run` unless ``shape`` is given.
+
+    **Several people in view.** Keypoints may list P people per frame (``(P, 18, 2)``, any
+    order, P varying from frame to frame). The tracker chooses one person when it first
+    initialises (``person``: ``"auto"`` = the most complete detection, the closest of those;
+    ``"largest"``, ``"closest"`` or an index into the first frame's list) and then follows it:
+    each frame the detection nearest the track's 3D keypoints is taken if it lies within a
+    gate (``follow``, :class:`FollowSettings`), the others are ignored and their pixels removed
+    from the depth the tracker fits. When only other people are in view the frame is 'lost'
+    (the last pose is held); after ``config.lost_patience`` such frames the track restarts,
+    but only on a detection near the last position and consistent with the body proportions
+    measured while tracking. ``follow=None`` takes the highest-scoring detection every frame
+    (what a per-frame choice does: the track hops between people; kept for comparison).
     """
 
     def __init__(
@@ -192,6 +259,8 @@ class Tracker:
         shape: body.BodyShape | None = None,
         seed: int = 0,
         depth_scale: float = 1000.0,
+        person: PersonRule = "auto",
+        follow: FollowSettings | None = FollowSettings(),
     ):
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
@@ -202,6 +271,18 @@ class Tracker:
             raise ValueError(f"Tracker: intrinsics are not physical: fx, fy, cx, cy = {vals}")
         if not (np.isfinite(depth_scale) and depth_scale > 0):
             raise ValueError(f"Tracker: depth_scale must be positive, got {depth_scale!r}")
+        if follow is not None and not isinstance(follow, FollowSettings):
+            raise TypeError(
+                f"Tracker: follow must be posetrack.FollowSettings or None, got {type(follow)}"
+            )
+        if not (isinstance(person, (int, np.integer)) and not isinstance(person, bool)):
+            if person not in ("auto", "largest", "closest"):
+                raise ValueError(
+                    "Tracker: person must be 'auto', 'largest', 'closest' or an index, got "
+                    f"{person!r}"
+                )
+        self.person_rule = person
+        self.follow = follow
         self.config = config or TrackerConfig()
         if not isinstance(self.config, TrackerConfig):
             raise TypeError(
@@ -222,6 +303,14 @@ class Tracker:
         self._init_timed = False
         self._step_calls = 0
         self._step_times: list[float] = []
+        self._forget_person()
+
+    def _forget_person(self) -> None:
+        # Identity of the followed person: survives a track loss, not a reset().
+        self._reference: np.ndarray | None = None  # (18, 3) last tracked keypoints
+        self._since_reference = 0  # frames since _reference was updated
+        self._lengths: list[np.ndarray] = []  # body segment lengths while tracked
+        self._person = -1
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -251,9 +340,71 @@ class Tracker:
         return ratios
 
     def reset(self) -> None:
-        """Forget the track (the next frame re-initialises from observations)."""
+        """Forget the track and the person followed (the next frame starts afresh and chooses
+        a person by the ``person`` rule)."""
+        self._drop_track()
+        self._forget_person()
+        self._ever_initialized = False
+
+    def _drop_track(self) -> None:
+        """Forget the hypotheses after a loss; keep who is followed."""
         self._state = None
         self._lost_run = 0
+
+    @property
+    def person(self) -> int:
+        """Index, in the last frame's list of people, of the detection followed (-1: none)."""
+        return self._person
+
+    def _shape_signature(self) -> np.ndarray | None:
+        if len(self._lengths) < 5:
+            return None
+        return quiet_nanmedian(np.stack(self._lengths), axis=0)
+
+    def _select_person(self, cands: Candidates) -> int:
+        """The index of the followed person among this frame's detections, or -1."""
+        if len(cands) == 0:
+            return -1
+        if self.follow is None:  # per-frame choice: the most prominent detection
+            score = detection_score(cands.keypoints2d, cands.confidence)
+            return int(np.argmax(score)) if (score > 0).any() or len(cands) == 1 else -1
+        fs = self.follow
+        if self._reference is None:
+            return choose_person(cands, self.person_rule, min_keypoints=fs.min_keypoints)
+        cost = match_costs(cands, self._reference, self.intrinsics, min_keypoints=fs.min_keypoints)
+        ok = cost < fs.gate_after(self._since_reference)
+        signature = self._shape_signature()
+        if self._state is None and signature is not None and ok.any():
+            # Re-acquisition: also the body's proportions (inconclusive = not a veto).
+            mismatch = shape_mismatch(segment_lengths(cands.points3d, cands.has_depth), signature)
+            ok &= ~(mismatch > fs.shape_tolerance)
+        return int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
+
+    def _frame_for_person(
+        self, depth_m: np.ndarray, kp_all: np.ndarray, conf_all: np.ndarray
+    ) -> tuple[int, Candidates, np.ndarray, np.ndarray, np.ndarray]:
+        """Choose the followed person; return (index, candidates, depth for the fit, its
+        keypoints (18, 2), its confidence (18,)). Without the person: zero keypoints."""
+        cands = lift_candidates(depth_m, kp_all, conf_all, self.intrinsics)
+        p = self._select_person(cands)
+        self._person = p
+        if p < 0:
+            return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
+        kp, conf = cands.person(p)
+        if self.follow is not None and self.follow.mask_others and len(cands) > 1:
+            own = cands.has_depth[p]
+            z_ref = float(np.median(cands.points3d[p, own, 2])) if own.any() else None
+            mask = other_people_mask(depth_m, cands, p, self.intrinsics, reference_depth=z_ref)
+            if mask.any():
+                depth_m = np.where(mask, np.float32(0), depth_m)
+        return p, cands, depth_m, kp, conf
+
+    def _remember(self, cands: Candidates, p: int, keypoints3d: np.ndarray) -> None:
+        """A tracked frame: the followed person's keypoints and proportions."""
+        self._reference = np.asarray(keypoints3d, np.float64)
+        self._since_reference = 0
+        if p >= 0 and len(self._lengths) < 200:
+            self._lengths.append(segment_lengths(cands.points3d[p], cands.has_depth[p]))
 
     @property
     def initialized(self) -> bool:
@@ -318,6 +469,9 @@ class Tracker:
         )
         self._lost_run = 0
         self._ever_initialized = True
+        if self._reference is None:  # the first start: this is the person to follow
+            self._reference = np.asarray(kps, np.float64)
+            self._since_reference = 0
         return True
 
     def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
@@ -344,16 +498,30 @@ class Tracker:
         """Process one frame. Returns (estimate or None, status code).
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
-        ``keypoints2d``: (18, 2) pixels; ``confidence``: (18,), 0 = missing.
+        ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
+        (any order); ``confidence``: (18,) or (P, 18), 0 = missing. :attr:`person` says which
+        detection was followed.
         """
-        depth_m, kp, conf = check_frame(
-            self.intrinsics, depth, keypoints2d, confidence, self.depth_scale, "update"
-        )
-        if self._state is None and not self._initialize(depth_m, kp, conf):
+        depth_m = check_depth(self.intrinsics, depth, self.depth_scale, "update")
+        kp_all, conf_all = check_people(keypoints2d, confidence, "update")
+        p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
+        if p < 0:
+            fs = self.follow or FollowSettings()
+            if self._reference is None or not cands.usable(fs.min_keypoints).any():
+                return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
+            # Only other people in view: the followed person is lost this frame.
+            self._since_reference += 1
+            if self._state is not None:
+                self._lost_run += 1
+                if self._lost_run >= self.config.lost_patience:
+                    self._drop_track()
+            return None, LOST
+        if self._state is None and not self._initialize(depth_fit, kp, conf):
+            self._since_reference += 1
             return None, NO_OBSERVATION
         t0 = time.perf_counter()
         state, est = step(
-            self.config, self.shape, self.intrinsics, self._floor, self._state, depth_m, kp, conf
+            self.config, self.shape, self.intrinsics, self._floor, self._state, depth_fit, kp, conf
         )
         jax.block_until_ready(est)
         dt = time.perf_counter() - t0
@@ -362,6 +530,7 @@ class Tracker:
         else:
             self._step_times.append(dt)
         self._step_calls += 1
+        self._since_reference += 1
         if int(est.num_3d) < self.config.min_landmarks:
             # Too little to fit: hold the previous pose, keep the hypotheses.
             return est, NO_OBSERVATION
@@ -370,9 +539,10 @@ class Tracker:
         if float(est.delta) > cfg.lost_delta or float(est.agreement) < cfg.lost_agreement:
             self._lost_run += 1
             if self._lost_run >= self.config.lost_patience:
-                self.reset()
+                self._drop_track()
             return est, LOST
         self._lost_run = 0
+        self._remember(cands, p, np.asarray(est.keypoints3d))
         return est, TRACKED
 
     def run(
@@ -406,7 +576,7 @@ class Tracker:
         if self.shape is None:
             n = min(self.config.shape_frames, T)
             t0 = time.perf_counter()
-            self.estimate_shape([depths[i] for i in range(n)], keypoints2d[:n], confidence[:n])
+            self.estimate_shape(*self._shape_frames(depths, keypoints2d, confidence, n))
             self.compile_s += time.perf_counter() - t0
         kp3 = np.full((T, 18, 3), np.nan)
         params = np.full((T, 43), np.nan)
@@ -416,12 +586,21 @@ class Tracker:
         lm3 = np.zeros((T, 18, 3))
         has_d = np.zeros((T, 18), bool)
         det = np.zeros((T, 18), bool)
+        person = np.full(T, -1, np.int64)
+        num_people = np.zeros(T, np.int64)
         for t in range(T):
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
             status[t] = st
+            person[t] = self._person
+            num_people[t] = int(np.size(confidence[t]) // 18)
             if progress is not None:
                 progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
             if est is None:
+                if self._state is not None:
+                    # The track lives but its person was not seen (nobody, or only other
+                    # people): hold the last pose, as for a frame without observation.
+                    params[t] = np.asarray(self._state.best)
+                    kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
                 continue
             lm = est.landmarks
             lm3[t], has_d[t], det[t] = (
@@ -460,7 +639,39 @@ class Tracker:
             config=self.config,
             compile_s=float(self.compile_s),
             ms_per_frame=float(np.median(times) * 1000) if times else float("nan"),
+            person_index=person,
+            num_people=num_people,
         )
+
+    def _shape_frames(self, depths, keypoints2d, confidence, n: int) -> tuple[list, list, list]:
+        """The followed person's observations in the first ``n`` frames, for
+        :meth:`estimate_shape` (before any pose exists, people are followed by their lifted
+        keypoints alone, with the same rules as :meth:`update`)."""
+        ds, kps, confs = [], [], []
+        ref, since = None, 0
+        for i in range(n):
+            d = check_depth(self.intrinsics, depths[i], self.depth_scale, f"frame {i}")
+            kp_all, conf_all = check_people(keypoints2d[i], confidence[i], f"frame {i}")
+            cands = lift_candidates(d, kp_all, conf_all, self.intrinsics)
+            p = -1
+            if len(cands) and self.follow is None:
+                p = int(np.argmax(detection_score(cands.keypoints2d, cands.confidence)))
+            elif len(cands) and ref is None:
+                p = choose_person(cands, self.person_rule, min_keypoints=self.follow.min_keypoints)
+            elif len(cands):
+                cost = match_costs(cands, ref, self.intrinsics)
+                ok = cost < self.follow.gate_after(since)
+                p = int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
+            if p >= 0 and cands.has_depth[p].sum() >= 3:
+                ref = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
+                since = 0
+            else:
+                since += 1
+            kp, conf = cands.person(p) if p >= 0 else (np.zeros((18, 2)), np.zeros(18))
+            ds.append(d)
+            kps.append(kp)
+            confs.append(conf)
+        return ds, kps, confs
 
 
 def track(
@@ -473,9 +684,12 @@ def track(
     shape: body.BodyShape | None = None,
     seed: int = 0,
     progress: ProgressCallback | None = None,
+    person: PersonRule = "auto",
+    follow: FollowSettings | None = FollowSettings(),
 ) -> TrackResult:
-    """Track a sequence in one call (see :class:`Tracker`)."""
-    return Tracker(intrinsics, config, shape=shape, seed=seed).run(
+    """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
+    ``(18, 2)`` or every detected person ``(P, 18, 2)``."""
+    return Tracker(intrinsics, config, shape=shape, seed=seed, person=person, follow=follow).run(
         depths, keypoints2d, confidence, progress=progress
     )
 

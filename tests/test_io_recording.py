@@ -206,8 +206,15 @@ def test_multi_person_and_nobody_are_reported(tmp_path):
     assert not rec.observed[4] and rec.observed[[0, 1, 2, 3, 5]].all()
     assert any("several people in 1 frame(s) (2)" in n for n in rec.notes)
     assert any("nobody detected in 1 frame(s) (4)" in n for n in rec.notes)
+    # Every listed person, in file order, padded to the most people in a frame.
+    assert rec.people2d.shape == (6, 2, 18, 2) and rec.people_confidence.shape == (6, 2, 18)
+    np.testing.assert_allclose(rec.people2d[2], np.stack([small, big]), rtol=1e-6)
+    np.testing.assert_allclose(rec.people2d[0, 0], rec.keypoints2d[0])
+    assert not rec.people_confidence[[0, 1, 3, 5], 1].any() and not rec.people_confidence[4].any()
     rec = _load(folder, person_id=5)
     assert rec.person_index[2] == 0 and not rec.observed[[0, 1, 3, 4, 5]].any()
+    assert rec.people2d.shape == (6, 1, 18, 2)
+    np.testing.assert_allclose(rec.people2d[2, 0], small, rtol=1e-6)
     with pytest.raises(InputError, match="no keypoint file lists") as info:
         _load(folder, person_id=42)
     assert info.value.field == "person_id" and info.value.value == 42

@@ -130,9 +130,10 @@ def _track(args) -> int:
             )
             print(f"note: {notes[-1]}", file=sys.stderr)
     else:
-        kp2d, conf = rec.keypoints2d, rec.confidence
-    # Frames without observation (no depth file, nobody chosen) carry no keypoints at all.
-    conf = np.where(rec.observed[:, None], conf, np.float32(0))
+        # Every detected person: the tracker chooses one and follows it.
+        kp2d, conf = rec.people2d, rec.people_confidence
+    # Frames without observation (no depth file, nobody detected) carry no keypoints at all.
+    conf = np.where(rec.observed.reshape((-1,) + (1,) * (conf.ndim - 1)), conf, np.float32(0))
     t_detected = time.perf_counter()
 
     overrides = {}
@@ -148,10 +149,16 @@ def _track(args) -> int:
         f"{'is' if config.n == 1 else 'es'} (the first frames include JAX compilation)",
         file=sys.stderr,
     )
-    tracker = Tracker(rec.intrinsics, config, seed=args.seed)
+    tracker = Tracker(rec.intrinsics, config, seed=args.seed, person=args.person)
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
     t_tracked = time.perf_counter()
+    person = _person_summary(result, rec.frame_ids, args.person)
+    if kp2d.ndim == 4:  # the followed person's detections, for the overlay and the files
+        pick = np.maximum(result.person_index, 0)
+        followed = result.person_index >= 0
+        kp2d = kp2d[np.arange(n), pick]
+        conf = np.where(followed[:, None], conf[np.arange(n), pick], np.float32(0))
 
     fps = args.fps if args.fps is not None else rec.fps
     info = {
@@ -163,11 +170,13 @@ def _track(args) -> int:
             "intrinsics": os.path.abspath(args.intrinsics),
             "depth_scale": args.depth_scale,
             "person_id": args.person_id,
+            "person": args.person,
             "allow_missing": args.allow_missing,
             "drop_outside": args.drop_outside,
             "seed": args.seed,
         },
         "notes": notes,
+        "person": person,
         "timing": {
             "load_s": t_loaded - t_start,
             "detect_s": t_detected - t_loaded if args.detect else None,
@@ -189,6 +198,13 @@ def _track(args) -> int:
         f"{counts['no_observation']} without observation; mean Delta {mean_delta} "
         f"(tracked frames)"
     )
+    if person["max_people"] > 1:
+        print(
+            f"person: followed people[{person['first_index']}] of frame "
+            f"{person['first_frame']} (--person {args.person}); other people ignored in "
+            f"{person['frames_others_ignored']} frame(s); the followed person not found among "
+            f"others in {person['frames_lost_among_others']} frame(s) (lost)"
+        )
     steady = (
         f", {result.ms_per_frame:.0f} ms/frame after that"
         if np.isfinite(result.ms_per_frame)
@@ -207,6 +223,39 @@ def _track(args) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _person_summary(result, frame_ids, rule) -> dict:
+    """Who was followed, for the summary line and summary.json."""
+    import numpy as np
+
+    followed = np.flatnonzero(result.person_index >= 0)
+    first = int(followed[0]) if followed.size else None
+    lost_among = (result.person_index < 0) & (result.num_people > 0) & (result.status == 1)
+    return {
+        "rule": rule,
+        "first_frame": None if first is None else int(frame_ids[first]),
+        "first_index": None if first is None else int(result.person_index[first]),
+        "max_people": int(result.num_people.max(initial=0)),
+        "frames_followed": int(followed.size),
+        "frames_others_ignored": result.others_ignored,
+        "frames_lost_among_others": int(lost_among.sum()),
+        "person_index": [int(i) for i in result.person_index],
+    }
+
+
+def _person_arg(value: str):
+    if value in ("auto", "largest", "closest"):
+        return value
+    try:
+        index = int(value)
+    except ValueError:
+        index = -1
+    if index < 0:
+        raise argparse.ArgumentTypeError(
+            f"expected auto, largest, closest or a person index >= 0, got {value!r}"
+        )
+    return index
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -314,7 +363,14 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     t.add_argument(
         "--person-id", type=int, metavar="ID",
-        help="OpenPose person_id to follow (default: the best-scoring person in each frame)",
+        help="OpenPose person_id to follow, when OpenPose's own tracking wrote ids (default: "
+        "the tracker chooses, see --person)",
+    )  # fmt: skip
+    t.add_argument(
+        "--person", type=_person_arg, default="auto", metavar="RULE",
+        help="with several people in view, whom to follow: auto (the most complete detection, "
+        "the closest of those), largest, closest, or an index into the first frame's list of "
+        "people; chosen once, then followed (others are ignored) (default: %(default)s)",
     )  # fmt: skip
     t.add_argument(
         "--allow-missing", action="store_true",

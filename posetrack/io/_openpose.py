@@ -53,9 +53,7 @@ BODY25_NAMES = (
 )  # fmt: skip
 """OpenPose BODY_25 keypoint names, in order."""
 
-BODY25_TO_COCO18 = np.array(
-    [BODY25_NAMES.index(name) for name in COCO18_NAMES], dtype=np.int64
-)
+BODY25_TO_COCO18 = np.array([BODY25_NAMES.index(name) for name in COCO18_NAMES], dtype=np.int64)
 """``coco18[i] = body25[BODY25_TO_COCO18[i]]``: [0..7, 9..18] (skips MidHip=8 and the feet)."""
 
 _LAYOUTS = {54: "COCO-18", 75: "BODY_25"}
@@ -87,6 +85,10 @@ class KeypointFrame:
     """COCO-18 indices marked missing because they lay outside the image (``"drop"``)."""
     notes: tuple[str, ...] = field(default=())
     """Human-readable remarks: the person choice, dropped keypoints, person id not found."""
+    people: np.ndarray = field(default_factory=lambda: np.zeros((0, 18, 3), np.float32))
+    """``float32 (P, 18, 3)`` every listed person in file order, COCO-18 ``(u, v, confidence)``
+    with the same out-of-image rule as the chosen one; 0 = missing. A tracker that follows
+    one person through a recording chooses among these (``posetrack.Tracker``)."""
 
     @property
     def observed(self) -> bool:
@@ -114,8 +116,10 @@ def _parse_person(path: Path, i: int, person: Any) -> tuple[str, np.ndarray, tup
         raise InputError(path, where, person, f"is {format_value(person)}; expected an object")
     if "pose_keypoints_2d" not in person:
         raise InputError(
-            path, f"{where}.pose_keypoints_2d", None, "is missing (keys: "
-            f"{', '.join(sorted(map(str, person)))})"
+            path,
+            f"{where}.pose_keypoints_2d",
+            None,
+            f"is missing (keys: {', '.join(sorted(map(str, person)))})",
         )
     flat = person["pose_keypoints_2d"]
     field_name = f"{where}.pose_keypoints_2d"
@@ -148,6 +152,45 @@ def _score(xyc: np.ndarray) -> float:
         return 0.0
     extent = xyc[valid, :2].max(axis=0) - xyc[valid, :2].min(axis=0)
     return float(xyc[valid, 2].sum() * math.hypot(extent[0], extent[1]))
+
+
+def _check_inside(
+    path: Path,
+    i: int,
+    xyc: np.ndarray,
+    layout: str,
+    image_size: tuple[int, int] | None,
+    margin: float,
+    out_of_image: str,
+) -> tuple[np.ndarray, list[int]]:
+    """Person ``i``'s (18, 3) keypoints with the out-of-image rule applied (raise or mark
+    missing); missing keypoints zeroed. Returns (keypoints, dropped COCO-18 indices)."""
+    xyc = xyc.copy()
+    dropped: list[int] = []
+    if image_size is not None:
+        width, height = image_size
+        lo, hi_u, hi_v = -0.5 - margin, width - 0.5 + margin, height - 0.5 + margin
+        outside = (xyc[:, 2] > 0) & (
+            (xyc[:, 0] < lo) | (xyc[:, 0] > hi_u) | (xyc[:, 1] < lo) | (xyc[:, 1] > hi_v)
+        )
+        for k in np.flatnonzero(outside):
+            k = int(k)
+            raw = int(_INDEX[layout][k])
+            u, v = float(xyc[k, 0]), float(xyc[k, 1])
+            if out_of_image == "error":
+                raise InputError(
+                    path,
+                    f"people[{i}].pose_keypoints_2d[{3 * raw}:{3 * raw + 2}]",
+                    (u, v),
+                    f"keypoint {_NAMES[layout][raw]} at (u={u:g}, v={v:g}) lies outside the "
+                    f"{width}x{height} image by more than {margin:g} px; keypoints from a "
+                    "different image resolution? (out_of_image='drop', or --drop-outside on "
+                    "the command line, marks such points missing instead)",
+                )
+            dropped.append(k)
+            xyc[k] = 0.0
+    xyc[xyc[:, 2] <= 0] = 0.0
+    return xyc, dropped
 
 
 def read_openpose_json(
@@ -237,33 +280,18 @@ def read_openpose_json(
                 f"{scores[chosen]:.0f} vs runner-up {runner_up:.0f}"
                 + (", AMBIGUOUS)" if ambiguous else ")")
             )
-    xyc = coco[chosen].copy()
-    dropped: list[int] = []
-    if image_size is not None:
-        width, height = image_size
-        lo, hi_u, hi_v = -0.5 - margin, width - 0.5 + margin, height - 0.5 + margin
-        outside = (xyc[:, 2] > 0) & (
-            (xyc[:, 0] < lo) | (xyc[:, 0] > hi_u) | (xyc[:, 1] < lo) | (xyc[:, 1] > hi_v)
-        )
-        for k in np.flatnonzero(outside):
-            k = int(k)
-            raw = int(_INDEX[layout][k])
-            u, v = float(xyc[k, 0]), float(xyc[k, 1])
-            if out_of_image == "error":
-                raise InputError(
-                    path,
-                    f"people[{chosen}].pose_keypoints_2d[{3 * raw}:{3 * raw + 2}]",
-                    (u, v),
-                    f"keypoint {_NAMES[layout][raw]} at (u={u:g}, v={v:g}) lies outside the "
-                    f"{width}x{height} image by more than {margin:g} px; keypoints from a "
-                    "different image resolution? (out_of_image='drop', or --drop-outside on "
-                    "the command line, marks such points missing instead)",
-                )
-            dropped.append(k)
-            xyc[k] = 0.0
-        if dropped:
-            names = ", ".join(COCO18_NAMES[k] for k in dropped)
-            notes.append(f"{path.name}: dropped keypoints outside the image: {names}")
+    cleaned, dropped = [], []
+    for i, raw_xyc in enumerate(coco):
+        xyc_i, dropped_i = _check_inside(path, i, raw_xyc, layout, image_size, margin, out_of_image)
+        cleaned.append(xyc_i)
+        if dropped_i:
+            names = ", ".join(COCO18_NAMES[k] for k in dropped_i)
+            who = "" if len(coco) == 1 else f"people[{i}]: "
+            notes.append(f"{path.name}: {who}dropped keypoints outside the image: {names}")
+        if i == chosen:
+            dropped = dropped_i
+    everyone = np.stack(cleaned).astype(np.float32)
+    xyc = everyone[chosen].copy()
     missing = xyc[:, 2] <= 0
     xyc[missing] = 0.0
     return KeypointFrame(
@@ -276,6 +304,7 @@ def read_openpose_json(
         ambiguous=ambiguous,
         dropped=tuple(dropped),
         notes=tuple(notes),
+        people=everyone,
     )
 
 

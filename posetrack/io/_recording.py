@@ -42,9 +42,17 @@ class Recording:
     """Lazy ``float32 (H, W)`` metres per frame, 0 = no measurement (all 0 for an absent
     file); read on indexing, never cached."""
     keypoints2d: np.ndarray
-    """``float32 (T, 18, 2)`` COCO-18 pixels (u, v); 0 where missing."""
+    """``float32 (T, 18, 2)`` COCO-18 pixels (u, v) of one person per frame, 0 where missing:
+    the ``person_id`` given, else each frame's most prominent person (highest score). With
+    several people in view this per-frame choice hops between them: to follow one person
+    give :attr:`people2d` to the tracker."""
     confidence: np.ndarray
     """``float32 (T, 18)``; 0 = missing (all 0 in frames without observation)."""
+    people2d: np.ndarray
+    """``float32 (T, P, 18, 2)`` every person listed in each frame (file order, padded with
+    zeros to the most people in any frame; P >= 1); with ``person_id`` only that person."""
+    people_confidence: np.ndarray
+    """``float32 (T, P, 18)``; 0 = missing or padding."""
     intrinsics: Intrinsics
     """Depth-camera intrinsics; their width x height is the depth image size."""
     rgb: RgbFrames | RgbVideo | None
@@ -124,8 +132,11 @@ def load_recording(
         sources["keypoints"] = (
             Path(keypoints_dir),
             list_frames(
-                keypoints_dir, extensions=(".json",), what="keypoints",
-                prefer_suffix=KEYPOINTS_SUFFIX + ".json", notes=notes,
+                keypoints_dir,
+                extensions=(".json",),
+                what="keypoints",
+                prefer_suffix=KEYPOINTS_SUFFIX + ".json",
+                notes=notes,
             ),  # fmt: skip
         )
     video = None
@@ -162,6 +173,7 @@ def load_recording(
 
     keypoints2d = np.zeros((n, 18, 2), np.float32)
     confidence = np.zeros((n, 18), np.float32)
+    everyone: list[np.ndarray] = [np.zeros((0, 18, 3), np.float32)] * n
     num_people = np.zeros(n, np.int64)
     person_index = np.full(n, -1, np.int64)
     layout: str | None = None
@@ -189,6 +201,11 @@ def load_recording(
                         "one recording, one keypoint layout",
                     )  # fmt: skip
             keypoints2d[t], confidence[t] = frame.keypoints2d, frame.confidence
+            if person_id is None:
+                everyone[t] = frame.people
+            elif frame.person_index >= 0:
+                chosen = np.concatenate([frame.keypoints2d, frame.confidence[:, None]], axis=1)
+                everyone[t] = chosen[None]
             num_people[t], person_index[t] = frame.num_people, frame.person_index
             kp_observed[t] = frame.observed
             fid = int(frame_ids[t])
@@ -216,11 +233,10 @@ def load_recording(
         if multi:
             notes.append(
                 f"keypoints: several people in {len(multi)} frame(s) ({format_ranges(multi)}); "
-                "chose the highest score (sum of confidences x bounding-box diagonal)"
+                "the tracker follows one person from the start (see --person)"
                 + (
-                    f"; AMBIGUOUS (runner-up >= {AMBIGUOUS_RATIO:.0%} of the best) in "
-                    f"{format_ranges(ambiguous)}: pass person_id (--person-id) if the wrong "
-                    "person is tracked"
+                    f"; close calls (runner-up >= {AMBIGUOUS_RATIO:.0%} of the most prominent) "
+                    f"in {format_ranges(ambiguous)}"
                     if ambiguous
                     else ""
                 )
@@ -245,6 +261,11 @@ def load_recording(
         observed = has_depth & kp_observed
     else:
         observed = has_depth
+
+    P = max(1, max(len(e) for e in everyone))
+    people = np.zeros((n, P, 18, 3), np.float32)
+    for t, e in enumerate(everyone):
+        people[t, : len(e)] = e
 
     rgb_seq: RgbFrames | RgbVideo | None = None
     fps = None
@@ -274,6 +295,8 @@ def load_recording(
         depth=depth,
         keypoints2d=_readonly(keypoints2d),
         confidence=_readonly(confidence),
+        people2d=_readonly(np.ascontiguousarray(people[..., :2])),
+        people_confidence=_readonly(np.ascontiguousarray(people[..., 2])),
         intrinsics=intrinsics,
         rgb=rgb_seq,
         observed=_readonly(observed),

@@ -1,0 +1,370 @@
+"""Which detected person is the tracked one (host side, NumPy).
+
+A 2D detector lists every person it sees, in no particular order (OpenPose writes
+``person_id`` -1 unless its tracker is on). A single-person tracker must pick one person once
+and then follow it; taking the best-scoring detection anew every frame makes the track hop
+between people whenever a second person is in view.
+
+* **Initial choice** (:func:`choose_person`): by default the most complete detection (most
+  keypoints with valid depth), the closest among those nearly as complete; or the largest,
+  the closest, or a given index.
+* **Association** (:func:`match_costs`): each detection's keypoints are lifted with the depth
+  map (the median of valid depths in a small window, as the tracker's own lifting) and
+  compared with the track's last 3D keypoints: the cost is the median over keypoints of the
+  3D distance where the detection has depth, and of the 2D distance converted to metres at the
+  track's depth where it has not. A detection is the tracked person only if its cost is under
+  a gate, which widens while the person is unseen (:meth:`FollowSettings.gate_after`).
+  Other detections are ignored (and their pixels removed from the depth the tracker fits,
+  :func:`other_people_mask`: their depth is not the tracked body's).
+* **Re-acquisition** after a loss: a detection must also be consistent with the person's body
+  proportions measured while tracking (:func:`segment_lengths`, :func:`shape_mismatch`) and lie
+  within the widened gate of the last tracked position; when none is, the frame stays lost
+  rather than jumping to whoever else is in view.
+
+No JAX here: a handful of people per frame, a few hundred numbers; the per-frame tracker step
+stays one jitted call.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from typing import Literal
+
+import numpy as np
+
+from ._camera import Intrinsics
+
+#: Rules for the initial choice of person (besides an integer index).
+PERSON_RULES = ("auto", "largest", "closest")
+PersonRule = Literal["auto", "largest", "closest"] | int
+
+#: Keypoint pairs whose 3D distance describes a body's proportions (COCO-18 indices):
+#: shoulder width, hip width, upper arms, forearms, thighs, shins, neck to each hip.
+SEGMENTS = (
+    (2, 5), (8, 11), (2, 3), (5, 6), (3, 4), (6, 7), (8, 9), (11, 12), (9, 10), (12, 13),
+    (1, 8), (1, 11),
+)  # fmt: skip
+
+#: COCO-18 bones drawn when masking another person's pixels (:func:`other_people_mask`).
+_BONES = (
+    (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (1, 8), (8, 9), (9, 10), (1, 11),
+    (11, 12), (12, 13), (2, 8), (5, 11), (8, 11), (1, 0), (0, 14), (0, 15), (14, 16), (15, 17),
+)  # fmt: skip
+
+
+def quiet_nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
+    """``np.nanmedian`` without the all-NaN warning (an all-NaN slice gives NaN: nothing
+    measured, which callers handle)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmedian(a, axis=axis)
+
+
+@dataclasses.dataclass(frozen=True)
+class FollowSettings:
+    """How the tracker follows one person among several detections.
+
+    Distances are medians over a detection's keypoints, metres (see :func:`match_costs`).
+    """
+
+    gate: float = 0.35
+    """A detection is the tracked person when its cost is below this (m). The cost of the
+    right person is its tracking error plus the body's half-thickness (the depth camera sees
+    the surface, the track holds joint centres) plus a frame of motion: typically 0.05-0.2 m.
+    A second person is a body width or more away."""
+    gate_growth: float = 0.02
+    """Metres the gate widens per frame the person is not found (0.6 m/s at 30 fps)."""
+    gate_max: float = 1.5
+    """The widest gate, m."""
+    shape_tolerance: float = 0.15
+    """Re-acquisition: the median over body segments of |log(length / tracked length)| must be
+    below this (0.15 = about 16 %). Single-frame lengths are noisy, so this rejects clearly
+    different bodies (a child, a much taller person) rather than telling twins apart."""
+    min_keypoints: int = 3
+    """A detection needs this many keypoints (confidence above ``confidence_threshold``) to be
+    considered at all."""
+    confidence_threshold: float = 0.1
+    """Keypoints at or below this confidence are ignored (as the tracker's lifting does)."""
+    mask_others: bool = True
+    """Remove the other detected people's pixels from the depth the tracker fits and scores."""
+
+    def gate_after(self, unseen: int) -> float:
+        """The gate (m) after ``unseen`` consecutive frames without the tracked person."""
+        return min(self.gate + self.gate_growth * max(int(unseen), 0), self.gate_max)
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidates:
+    """The detections of one frame, lifted (NumPy arrays over P people)."""
+
+    keypoints2d: np.ndarray
+    """``float32 (P, 18, 2)`` pixels."""
+    confidence: np.ndarray
+    """``float32 (P, 18)``; 0 = missing."""
+    points3d: np.ndarray
+    """``float64 (P, 18, 3)`` lifted keypoints, camera frame, m (0 where ``has_depth`` is
+    false)."""
+    detected: np.ndarray
+    """``bool (P, 18)`` confidence above the threshold."""
+    has_depth: np.ndarray
+    """``bool (P, 18)`` detected and valid depth found around the keypoint."""
+
+    def __len__(self) -> int:
+        return int(self.keypoints2d.shape[0])
+
+    def usable(self, min_keypoints: int = 3) -> np.ndarray:
+        """``bool (P,)`` people with at least ``min_keypoints`` detected keypoints."""
+        return self.detected.sum(axis=1) >= min_keypoints
+
+    def person(self, p: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(keypoints2d (18, 2), confidence (18,))`` of person ``p``."""
+        return self.keypoints2d[p], self.confidence[p]
+
+
+def lift_candidates(
+    depth_m: np.ndarray,
+    keypoints2d: np.ndarray,
+    confidence: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    window: int = 5,
+    confidence_threshold: float = 0.1,
+    min_depth: float = 0.2,
+    max_depth: float = 10.0,
+    min_valid: int = 3,
+) -> Candidates:
+    """Lift every detected person's keypoints with the depth map (plain lifting).
+
+    The same rule as the tracker's lifting (``lift_keypoints``, whose options these mirror):
+    the median of the valid depths in a ``window`` x ``window`` square around the keypoint,
+    back-projected; no surface offset (association compares bodies, it does not fit joints).
+    A NumPy twin rather than a vmap of the JAX function: the number of people changes from
+    frame to frame, and each new count would compile a new program on the host's critical
+    path; ``tests/test_associate.py`` checks that both agree.
+
+    Args:
+        depth_m: ``(H, W)`` metres; 0, NaN and depths outside [min_depth, max_depth] invalid.
+        keypoints2d: ``(P, 18, 2)`` pixels. confidence: ``(P, 18)``.
+        intrinsics: the depth camera.
+
+    Returns:
+        :class:`Candidates`.
+    """
+    kp = np.asarray(keypoints2d, np.float64).reshape(-1, 18, 2)
+    conf = np.asarray(confidence, np.float64).reshape(-1, 18)
+    H, W = depth_m.shape
+    detected = (conf > confidence_threshold) & np.isfinite(kp).all(axis=-1)
+    detected &= (kp[..., 0] > -0.5) & (kp[..., 0] < W - 0.5)
+    detected &= (kp[..., 1] > -0.5) & (kp[..., 1] < H - 0.5)
+    r = window // 2
+    off = np.arange(-r, r + 1)
+    ui = np.rint(np.where(detected, kp[..., 0], 0)).astype(int)[..., None, None] + off[None, :]
+    vi = np.rint(np.where(detected, kp[..., 1], 0)).astype(int)[..., None, None] + off[:, None]
+    inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    z = np.asarray(depth_m, np.float64)[np.clip(vi, 0, H - 1), np.clip(ui, 0, W - 1)]
+    valid = inside & np.isfinite(z) & (z >= min_depth) & (z <= max_depth)
+    z = np.where(valid, z, np.nan).reshape(*kp.shape[:2], -1)
+    count = valid.reshape(*kp.shape[:2], -1).sum(axis=-1)
+    has_depth = detected & (count >= min_valid)
+    zm = np.where(has_depth, quiet_nanmedian(np.where(has_depth[..., None], z, 1.0), axis=-1), 0)
+    fx, fy, cx, cy = (float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                         intrinsics.cy))  # fmt: skip
+    pts = np.stack([(kp[..., 0] - cx) / fx * zm, (kp[..., 1] - cy) / fy * zm, zm], axis=-1)
+    pts = np.where(has_depth[..., None], pts, 0.0)
+    return Candidates(
+        keypoints2d=kp.astype(np.float32), confidence=conf.astype(np.float32),
+        points3d=pts, detected=detected, has_depth=has_depth,
+    )  # fmt: skip
+
+
+def detection_score(keypoints2d: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """OpenPose-style prominence of each person: sum of confidences x bounding-box diagonal.
+
+    Args:
+        keypoints2d: ``(P, 18, 2)`` (or any ``(P, K, 2)``) pixels. confidence: ``(P, K)``.
+
+    Returns:
+        ``(P,)`` scores (0 for a person with fewer than 2 keypoints).
+    """
+    kp = np.asarray(keypoints2d, np.float64)
+    conf = np.asarray(confidence, np.float64)
+    valid = conf > 0
+    lo = np.where(valid[..., None], kp, np.inf).min(axis=1)
+    hi = np.where(valid[..., None], kp, -np.inf).max(axis=1)
+    with np.errstate(invalid="ignore"):
+        diag = np.hypot(*(hi - lo).T)
+    score = np.where(valid, conf, 0).sum(axis=1) * np.nan_to_num(diag, nan=0.0, posinf=0.0)
+    return np.where(valid.sum(axis=1) >= 2, score, 0.0)
+
+
+def choose_person(cands: Candidates, rule: PersonRule = "auto", *, min_keypoints: int = 3) -> int:
+    """The person to follow from the first frame's detections; -1 if none qualifies.
+
+    Args:
+        cands: the frame's lifted detections.
+        rule: ``"auto"`` = the most complete (most keypoints with depth), the closest of those
+            within 2 keypoints of it; ``"largest"`` = largest detection score
+            (:func:`detection_score`); ``"closest"`` = smallest median depth; an ``int`` = that
+            index into the frame's list of people.
+        min_keypoints: detections with fewer keypoints are never chosen by a rule.
+
+    Raises:
+        ValueError: an unknown rule, or an index outside the frame's list.
+    """
+    P = len(cands)
+    if isinstance(rule, (int, np.integer)) and not isinstance(rule, bool):
+        if not 0 <= int(rule) < P:
+            raise ValueError(
+                f"person index {int(rule)} is not among the {P} people detected in the first "
+                "frame with detections (indices 0.." + f"{P - 1})"
+            )
+        return int(rule)
+    if rule not in PERSON_RULES:
+        raise ValueError(f"person must be one of {PERSON_RULES} or an index, got {rule!r}")
+    n_det = cands.detected.sum(axis=1)
+    n_3d = cands.has_depth.sum(axis=1)
+    ok = n_det >= min_keypoints
+    if not ok.any():
+        return -1
+    z = quiet_nanmedian(np.where(cands.has_depth, cands.points3d[..., 2], np.nan), axis=1)
+    z = np.where(np.isfinite(z), z, np.inf)
+    if rule == "largest":
+        score = detection_score(cands.keypoints2d, np.where(cands.detected, cands.confidence, 0))
+        return int(np.argmax(np.where(ok, score, -1.0)))
+    if rule == "closest":
+        return (
+            int(np.argmin(np.where(ok & (n_3d > 0), z, np.inf)))
+            if (ok & (n_3d > 0)).any()
+            else int(np.argmax(np.where(ok, n_det, -1)))
+        )
+    complete = ok & (n_3d >= n_3d[ok].max() - 2)
+    return (
+        int(np.argmin(np.where(complete, z, np.inf)))
+        if np.isfinite(z[complete]).any()
+        else int(np.argmax(np.where(ok, n_det, -1)))
+    )
+
+
+def match_costs(
+    cands: Candidates, reference3d: np.ndarray, intrinsics: Intrinsics, *, min_keypoints: int = 3
+) -> np.ndarray:
+    """How far each detection is from the tracked person, metres (``inf`` if not comparable).
+
+    The median over keypoints of: the 3D distance between the lifted keypoint and the
+    reference keypoint where the detection has depth; the 2D distance between the keypoint and
+    the reference's projection, times the reference depth over the focal length, where it has
+    not. The median ignores a few wrong keypoints (detector outliers, one swapped limb).
+
+    Args:
+        cands: the frame's lifted detections.
+        reference3d: ``(18, 3)`` the track's keypoints (camera frame, m); NaN rows ignored.
+        intrinsics: the depth camera.
+        min_keypoints: fewer comparable keypoints give ``inf``.
+
+    Returns:
+        ``(P,)`` costs, m.
+    """
+    ref = np.asarray(reference3d, np.float64)
+    fx, fy, cx, cy = (float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                         intrinsics.cy))  # fmt: skip
+    ref_ok = np.isfinite(ref).all(axis=-1) & (ref[:, 2] > 0.1)
+    z = np.where(ref_ok, ref[:, 2], 1.0)
+    uv = np.stack([fx * ref[:, 0] / z + cx, fy * ref[:, 1] / z + cy], axis=-1)
+    d3 = np.linalg.norm(cands.points3d - np.where(ref_ok[:, None], ref, 0.0)[None], axis=-1)
+    d2 = np.linalg.norm(cands.keypoints2d - uv[None], axis=-1) * z[None] / (0.5 * (fx + fy))
+    d = np.where(cands.has_depth, d3, d2)
+    usable = cands.detected & ref_ok[None]
+    cost = quiet_nanmedian(np.where(usable, d, np.nan), axis=1)
+    return np.where(usable.sum(axis=1) >= min_keypoints, cost, np.inf)
+
+
+def segment_lengths(points3d: np.ndarray, has_depth: np.ndarray) -> np.ndarray:
+    """Lengths of :data:`SEGMENTS` between lifted keypoints, m; NaN where an end lacks depth.
+
+    Args:
+        points3d: ``(..., 18, 3)``. has_depth: ``(..., 18)``.
+
+    Returns:
+        ``(..., S)`` with S = ``len(SEGMENTS)``.
+    """
+    a, b = (np.array(i) for i in zip(*SEGMENTS))
+    p = np.asarray(points3d, np.float64)
+    f = np.asarray(has_depth, bool)
+    length = np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
+    return np.where(f[..., a] & f[..., b], length, np.nan)
+
+
+def shape_mismatch(
+    lengths: np.ndarray, reference: np.ndarray, *, min_segments: int = 3
+) -> np.ndarray:
+    """Median over segments of ``|log(length / reference)|``; NaN when fewer than
+    ``min_segments`` segments are measured in both (the test is then inconclusive).
+
+    Args:
+        lengths: ``(P, S)`` from :func:`segment_lengths`. reference: ``(S,)`` (NaN = unknown).
+
+    Returns:
+        ``(P,)``.
+    """
+    with np.errstate(all="ignore"):
+        r = np.abs(np.log(np.asarray(lengths) / np.asarray(reference)[None]))
+        r = np.where(np.isfinite(r), r, np.nan)
+    out = quiet_nanmedian(r, axis=1)
+    return np.where(np.isfinite(r).sum(axis=1) >= min_segments, out, np.nan)
+
+
+def other_people_mask(
+    depth_m: np.ndarray,
+    cands: Candidates,
+    keep: int,
+    intrinsics: Intrinsics,
+    *,
+    half_width: float = 0.12,
+    depth_band: float = 0.3,
+    reference_depth: float | None = None,
+) -> np.ndarray:
+    """Pixels that show another detected person: ``bool (H, W)``.
+
+    For every person except ``keep``, each bone between two keypoints with depth is drawn as a
+    band ``half_width`` metres wide (at the bone's depth); a pixel in the band belongs to that
+    person when its depth is within ``depth_band`` of the bone's. Where ``reference_depth`` (the
+    tracked person's depth) is given, bones within ``depth_band`` of it are skipped: with two
+    people at one depth the depth cannot tell whose pixel it is, and removing the tracked
+    person's own pixels would do more harm than keeping a neighbour's.
+
+    Args:
+        depth_m: ``(H, W)`` metres. cands: the frame's detections. keep: the tracked person's
+            index (-1: mask everyone). intrinsics: the depth camera.
+
+    Returns:
+        ``bool (H, W)``.
+    """
+    import cv2  # opencv-python-headless is a core dependency; imported here to keep start-up lean
+
+    H, W = depth_m.shape
+    f = 0.5 * (float(intrinsics.fx) + float(intrinsics.fy))
+    # One label image: every drawn bone gets its own value; a pixel takes the depth band of the
+    # bone drawn over it (later bones overwrite earlier ones where bands overlap).
+    labels = np.zeros((H, W), np.uint16)
+    lo, hi = [np.inf], [-np.inf]
+    for p in range(len(cands)):
+        if p == keep:
+            continue
+        kp, pts, ok = cands.keypoints2d[p], cands.points3d[p], cands.has_depth[p]
+        for a, b in _BONES:
+            if not (ok[a] and ok[b]):
+                continue
+            z = 0.5 * (pts[a, 2] + pts[b, 2])
+            if reference_depth is not None and abs(z - reference_depth) < depth_band:
+                continue
+            width = max(int(round(2 * half_width * f / max(z, 0.3))), 1)
+            ua, va = (int(round(float(v))) for v in kp[a])
+            ub, vb = (int(round(float(v))) for v in kp[b])
+            cv2.line(labels, (ua, va), (ub, vb), len(lo), thickness=width)
+            lo.append(min(pts[a, 2], pts[b, 2]) - depth_band)
+            hi.append(max(pts[a, 2], pts[b, 2]) + depth_band)
+    if len(lo) == 1:
+        return np.zeros((H, W), bool)
+    d = np.asarray(depth_m, np.float64)
+    return (d >= np.asarray(lo)[labels]) & (d <= np.asarray(hi)[labels]) & (d > 0)

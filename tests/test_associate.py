@@ -1,0 +1,158 @@
+"""Which detection is the tracked person: lifting, initial choice, gate, shape, masking.
+
+NumPy only (no JAX): these run in milliseconds.
+"""
+
+import numpy as np
+import pytest
+
+import posetrack as pt
+from posetrack._associate import (
+    other_people_mask,
+    segment_lengths,
+    shape_mismatch,
+)
+
+INTR = pt.Intrinsics.create(fx=100.0, fy=100.0, cx=79.5, cy=59.5, width=160, height=120)
+FX, CX, CY = 100.0, 79.5, 59.5
+
+
+def _person_at(x: float, z: float, scale: float = 1.0) -> np.ndarray:
+    """(18, 3) a standing person's keypoints, centred at lateral x, depth z (m)."""
+    rng = np.random.default_rng(0)
+    base = np.array([
+        [0, -0.75, 0], [0, -0.55, 0], [-0.2, -0.55, 0], [-0.25, -0.3, 0], [-0.27, -0.05, 0],
+        [0.2, -0.55, 0], [0.25, -0.3, 0], [0.27, -0.05, 0], [-0.1, 0.0, 0], [-0.1, 0.45, 0],
+        [-0.1, 0.85, 0], [0.1, 0.0, 0], [0.1, 0.45, 0], [0.1, 0.85, 0], [-0.03, -0.78, 0],
+        [0.03, -0.78, 0], [-0.07, -0.76, 0], [0.07, -0.76, 0],
+    ])  # fmt: skip
+    return base * scale + np.array([x, 0.0, z]) + 0.005 * rng.standard_normal((18, 3))
+
+
+def _project(p: np.ndarray) -> np.ndarray:
+    return np.stack([FX * p[..., 0] / p[..., 2] + CX, FX * p[..., 1] / p[..., 2] + CY], -1)
+
+
+def _scene(people: list[np.ndarray], background: float = 5.0) -> np.ndarray:
+    """Depth image: each person a set of 9x9 squares at its keypoints' depths (far first)."""
+    depth = np.full((120, 160), background, np.float32)
+    for p in sorted(people, key=lambda q: -q[:, 2].mean()):
+        for (u, v), z in zip(_project(p), p[:, 2]):
+            u, v = int(round(u)), int(round(v))
+            depth[max(v - 4, 0) : v + 5, max(u - 4, 0) : u + 5] = z
+    return depth
+
+
+@pytest.fixture(scope="module")
+def two_people():
+    near, far = _person_at(-0.3, 2.0), _person_at(0.4, 3.0)
+    depth = _scene([near, far])
+    kp = _project(np.stack([far, near])).astype(np.float32)  # listed far first
+    conf = np.full((2, 18), 0.8, np.float32)
+    return depth, kp, conf, near, far
+
+
+def test_lifting_reads_each_persons_depth(two_people):
+    depth, kp, conf, near, far = two_people
+    c = pt.lift_candidates(depth, kp, conf, INTR)
+    assert c.has_depth.all()
+    np.testing.assert_allclose(c.points3d[0], far, atol=0.02)
+    np.testing.assert_allclose(c.points3d[1], near, atol=0.02)
+    # Missing keypoints, and keypoints on invalid depth, have no 3D point.
+    conf2 = conf.copy()
+    conf2[0, 4] = 0.0
+    depth2 = depth.copy()
+    u, v = np.rint(kp[1, 7]).astype(int)
+    depth2[v - 3 : v + 4, u - 3 : u + 4] = 0.0
+    c2 = pt.lift_candidates(depth2, kp, conf2, INTR)
+    assert not c2.detected[0, 4] and not c2.has_depth[0, 4]
+    assert c2.detected[1, 7] and not c2.has_depth[1, 7]
+
+
+def test_initial_choice_rules(two_people):
+    depth, kp, conf, near, far = two_people
+    c = pt.lift_candidates(depth, kp, conf, INTR)
+    assert pt.choose_person(c, "auto") == 1  # equally complete: the closer one
+    assert pt.choose_person(c, "closest") == 1
+    assert pt.choose_person(c, "largest") == 1  # nearer = bigger in the image
+    assert pt.choose_person(c, 0) == 0
+    # A far but complete person beats a near one seen only in part.
+    conf_part = conf.copy()
+    conf_part[1, 6:] = 0.0
+    c_part = pt.lift_candidates(depth, kp, conf_part, INTR)
+    assert pt.choose_person(c_part, "auto") == 0
+    with pytest.raises(ValueError, match="person index 2"):
+        pt.choose_person(c, 2)
+    with pytest.raises(ValueError, match="one of"):
+        pt.choose_person(c, "tallest")
+    none = pt.lift_candidates(depth, kp, np.zeros_like(conf), INTR)
+    assert pt.choose_person(none, "auto") == -1
+
+
+def test_match_costs_gate_the_other_person(two_people):
+    depth, kp, conf, near, far = two_people
+    c = pt.lift_candidates(depth, kp, conf, INTR)
+    # The track holds joint centres ~8 cm behind the surface and has moved 3 cm.
+    ref = near + np.array([0.03, 0.0, 0.08])
+    cost = pt.match_costs(c, ref, INTR)
+    gate = pt.FollowSettings().gate
+    assert cost[1] < 0.15 < gate < cost[0]
+    assert cost[0] == pytest.approx(np.linalg.norm([0.7, 0.0, 1.0]), abs=0.15)
+    # Without depth the 2D distance, in metres at the track's depth, still separates them.
+    c_2d = pt.lift_candidates(np.zeros_like(depth), kp, conf, INTR)
+    cost_2d = pt.match_costs(c_2d, ref, INTR)
+    assert cost_2d[1] < gate < cost_2d[0]
+    # Too few comparable keypoints: not comparable at all.
+    conf_few = np.zeros_like(conf)
+    conf_few[:, :2] = 0.8
+    assert np.isinf(pt.match_costs(pt.lift_candidates(depth, kp, conf_few, INTR), ref, INTR)).all()
+
+
+def test_gate_widens_while_unseen_up_to_a_limit():
+    fs = pt.FollowSettings(gate=0.3, gate_growth=0.05, gate_max=0.6)
+    assert fs.gate_after(0) == pytest.approx(0.3)
+    assert fs.gate_after(4) == pytest.approx(0.5)
+    assert fs.gate_after(100) == pytest.approx(0.6)
+
+
+def test_shape_mismatch_tells_a_child_from_the_adult():
+    adult = segment_lengths(_person_at(0, 2), np.ones(18, bool))
+    same = segment_lengths(_person_at(0.5, 2.5), np.ones(18, bool))
+    child = segment_lengths(_person_at(0, 2, scale=0.7), np.ones(18, bool))
+    m = shape_mismatch(np.stack([same, child]), adult)
+    tol = pt.FollowSettings().shape_tolerance
+    assert m[0] < 0.05 < tol < m[1]
+    # Fewer than 3 measured segments: inconclusive (NaN), never a veto.
+    few = np.full_like(adult, np.nan)
+    few[:2] = adult[:2]
+    assert np.isnan(shape_mismatch(few[None], adult))[0]
+
+
+def test_other_people_mask_removes_only_the_other_body(two_people):
+    depth, kp, conf, near, far = two_people
+    c = pt.lift_candidates(depth, kp, conf, INTR)
+    mask = other_people_mask(depth, c, keep=1, intrinsics=INTR, reference_depth=2.0)
+    near_px = np.isclose(depth, near[:, 2].mean(), atol=0.05)
+    far_px = np.isclose(depth, far[:, 2].mean(), atol=0.05)
+    assert mask[far_px].mean() > 0.5  # most of the other person's pixels
+    assert not mask[near_px].any()  # none of the followed person's
+    assert not mask[depth == 5.0].any()  # nor the background
+    # Two people at one depth: depth cannot tell whose pixel it is, so nothing is removed.
+    same_depth = other_people_mask(depth, c, keep=1, intrinsics=INTR, reference_depth=3.0)
+    assert not same_depth.any()
+
+
+def test_lifting_matches_the_trackers_own_lifting(two_people):
+    """``lift_candidates`` is the NumPy twin (P people at once, no compile per people count)
+    of ``lift_keypoints``: the same window median and back-projection."""
+    depth, kp, conf, near, far = two_people
+    depth = depth.copy()
+    depth[::3, ::2] = 0.0  # holes: the median runs over the valid depths only
+    conf = conf.copy()
+    conf[1, 3] = 0.05  # below the threshold: not detected
+    c = pt.lift_candidates(depth, kp, conf, INTR)
+    for p in range(2):
+        lm = pt.lift_keypoints(depth, kp[p], conf[p], INTR)
+        np.testing.assert_array_equal(c.detected[p], np.asarray(lm.detected))
+        np.testing.assert_array_equal(c.has_depth[p], np.asarray(lm.has_depth))
+        np.testing.assert_allclose(c.points3d[p], np.asarray(lm.points3d), atol=1e-5)
