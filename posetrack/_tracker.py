@@ -109,7 +109,7 @@ class TrackResult:
     """(T,) int: index into each frame's list of people of the detection the tracker followed;
     -1 where none was (nobody detected, or only other people: the frame is then 'lost')."""
     num_people: np.ndarray
-    """(T,) int: people detected in each frame."""
+    """(T,) int: people detected in each frame (with at least one keypoint)."""
 
     @property
     def others_ignored(self) -> int:
@@ -592,7 +592,7 @@ class Tracker:
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
             status[t] = st
             person[t] = self._person
-            num_people[t] = int(np.size(confidence[t]) // 18)
+            num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
             if progress is not None:
                 progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
             if est is None:
