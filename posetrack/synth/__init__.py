@@ -4,7 +4,8 @@ A host-side (NumPy/OpenCV) stand-in for a Kinect-v1 recording plus an OpenPose d
 by tests, benchmarks, notebooks and the demo until real data are available. It differs from
 the tracker's own capsule model the way a real camera does: its own body shape (ellipsoids and
 tapered capsules, a random subject per seed), a room, a Kinect-like depth sensor, detector
-errors, occluders, and built-in or real (CMU/MSR/UTKinect) motion.
+errors, occluders, and built-in or real (CMU/MSR/UTKinect) motion. ``bystander=True`` makes
+two-person scenes: a second person crosses the view, leaves and comes back (``people2d``).
 
 Quick use::
 

@@ -12,6 +12,7 @@ import numpy as np
 
 from posetrack._camera import Intrinsics, pixel_rays_np
 
+from ._bystander import bystander_motion
 from ._detector import DetectorConfig, perfect_detector, simulate_detector
 from ._mocap import real_motion
 from ._motion import MOTIONS, procedural_motion
@@ -22,6 +23,7 @@ from ._skeleton import (
     KEYPOINT_NAMES,
     N_KPT,
     SEG,
+    Subject,
     forward_kinematics,
     keypoints_world,
     sample_subject,
@@ -29,8 +31,10 @@ from ._skeleton import (
 from ._surface import Background, hair_mask, primitives_camera, render_frame, shade
 
 # Independent random streams per concern, keyed by (seed, stream): changing one option (say
-# the occlusion level) leaves the subject, motion, scene and sensor noise unchanged.
+# the occlusion level) leaves the subject, motion, scene and sensor noise unchanged. The
+# two-person streams come after the original ones, so single-person output is as it was.
 _SUBJECT, _MOTION, _SCENE, _SENSOR, _DETECTOR, _OCCLUDER, _RGB = range(1, 8)
+_BYSTANDER, _BYSTANDER_DET, _PEOPLE_ORDER = 8, 9, 10
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -57,11 +61,12 @@ class SyntheticSequence:
     """(T, 18, 2) float64 exact projections of ``joints3d``, px."""
     visible: np.ndarray
     """(T, 18) bool: the keypoint is inside the image, not under an occluder and not hidden
-    by the body itself."""
+    by the body itself or by another person (``bystander=True``)."""
     occluder_masks: np.ndarray
     """(T, H, W) bool pixels removed by occluding rectangles."""
     person_mask: np.ndarray
-    """(T, H, W) bool pixels showing the person (noise-free, before occluders)."""
+    """(T, H, W) bool pixels showing the (main) person (noise-free, before occluders); not
+    the bystander's."""
     intrinsics: Intrinsics
     """Camera intrinsics."""
     fps: float
@@ -73,7 +78,42 @@ class SyntheticSequence:
     subject: dict[str, Any]
     """The generated person's dimensions (m) and colours."""
     meta: dict[str, Any]
-    """Motion, seed, levels, scene, sensor and detector settings."""
+    """Motion, seed, levels, scene, sensor and detector settings, per-keypoint
+    ``self_visibility``, ``occluded_fraction`` (rectangles) and ``hidden_fraction``
+    (rectangles or another person in front), (T, 18) each. ``meta["bystander"]`` is None
+    without a second person, else a dict: ``height`` (m) and ``subject`` (as ``subject``),
+    ``speed`` (m/s), ``passes`` (two dicts: ``side`` "front"/"behind", ``depth`` m from the
+    camera, ``direction`` +1 = toward the image's right, ``frames`` [start, stop) of the
+    walk, ``x_start``/``x_stop`` world x, m) and its own three (T, 18) fractions."""
+    # Every-person fields. Optional at construction (None): then derived from keypoints2d /
+    # confidence as a one-person scene (see __post_init__), so older call sites still work.
+    people2d: np.ndarray = None  # type: ignore[assignment]
+    """(T, P, 18, 2) float32 every person the detector lists in each frame, px, in its order
+    (random per frame), zero-padded after the listed ones. A person is listed when at least
+    one of its keypoints is detected. P = 1 without bystander, and then
+    ``people2d[:, 0] == keypoints2d``."""
+    people_confidence: np.ndarray = None  # type: ignore[assignment]
+    """(T, P, 18) float32 confidences of ``people2d``; 0 = missed keypoint or padding."""
+    people_index: np.ndarray = None  # type: ignore[assignment]
+    """(T,) int64 slot of the main person (``joints3d``, ``keypoints2d``) in ``people2d[t]``;
+    -1 when none of its keypoints is detected that frame."""
+    others_joints3d: np.ndarray = None  # type: ignore[assignment]
+    """(T, P - 1, 18, 3) float64 ground-truth keypoints of the other people, camera frame, m
+    (also while they are out of view); (T, 0, 18, 3) without bystander."""
+
+    def __post_init__(self) -> None:
+        if self.people2d is not None:
+            return
+        listed = np.any(self.confidence > 0, axis=-1)
+        derived = {
+            "people2d": np.asarray(self.keypoints2d, np.float32)[:, None].copy(),
+            "people_confidence": np.asarray(self.confidence, np.float32)[:, None].copy(),
+            "people_index": np.where(listed, 0, -1).astype(np.int64),
+            "others_joints3d": np.zeros((len(listed), 0, 18, 3)),
+        }
+        for name, value in derived.items():
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, value)
 
     @property
     def n_frames(self) -> int:
@@ -86,17 +126,33 @@ class SyntheticSequence:
         return (f"SyntheticSequence(motion={self.meta['motion']!r}, seed={self.meta['seed']}, "
                 f"frames={self.n_frames}, size={self.intrinsics.width}x"
                 f"{self.intrinsics.height}, fps={self.fps}, "
-                f"occlusion_level={self.meta['occlusion_level']})")
+                f"occlusion_level={self.meta['occlusion_level']}"
+                f"{', bystander=True' if self.meta.get('bystander') else ''})")
 
 
 def _visibility(joints_cam: np.ndarray, uv: np.ndarray, radius: np.ndarray, own, label,
-                depth, occ_mask, fx: float, W: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+                depth, occ_mask, fx: float, W: int, H: int, *, others=()
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-keypoint fraction of a 5x5 neighbourhood that shows its own parts / an occluder.
 
     A sample "shows the joint" when the surface there belongs to one of the joint's own
     primitives and lies at most 1.3 x the local body radius + 3 cm in front of the joint
-    centre (an arm in front of the torso, the far side of the body or the back of the head
-    fail the test).
+    centre (an arm in front of the torso, the far side of the body, the back of the head or
+    another person in front fail the test). A sample is "hidden" when it lies under an
+    occluding rectangle or shows another person's surface farther than that in front of the
+    joint: a person passing in front acts on the detector like an occluder.
+
+    Args:
+        joints_cam: (18, 3) keypoints, camera frame, m. uv: (18, 2) their projections, px.
+        radius: (18,) body radius at each keypoint, m.
+        own: per keypoint, the primitive indices (label - BODY_LABEL0) of its own parts.
+        label: (H, W) render labels. depth: (H, W) rendered z, m.
+        occ_mask: (H, W) bool occluding rectangles. fx: focal length, px. W, H: image size.
+        others: primitive indices of the other people's bodies.
+
+    Returns:
+        (18,) each: self-visibility, fraction under a rectangle, fraction hidden (under a
+        rectangle or behind another person; equal to the previous one without ``others``).
     """
     z = joints_cam[:, 2]
     rho = np.maximum(1.5, 0.7 * radius * fx / np.maximum(z, 0.1))
@@ -115,8 +171,53 @@ def _visibility(joints_cam: np.ndarray, uv: np.ndarray, radius: np.ndarray, own,
         own_ok[k] = np.isin(lab[k], list(own[k])) & ((z[k] - zs[k]) < tol[k])
     own_ok &= inside
     self_vis = own_ok.mean(axis=1)
-    occ = (occ_mask[vc, uc] & inside).mean(axis=1)
-    return self_vis, occ
+    rect = occ_mask[vc, uc]
+    occ = (rect & inside).mean(axis=1)
+    if len(others) == 0:
+        return self_vis, occ, occ
+    person = np.isin(lab, list(others)) & ((z[:, None] - zs) >= tol[:, None])
+    hidden = ((rect | person) & inside).mean(axis=1)
+    return self_vis, occ, hidden
+
+
+def _project_joints(joints3d: np.ndarray, K: tuple[float, float, float, float], W: int,
+                    H: int) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 18, 3) camera-frame keypoints, m -> projections (..., 18, 2), px, and (..., 18)
+    bool: inside the image and at least 10 cm in front of the camera."""
+    fx, fy, cx, cy = K
+    z = np.maximum(joints3d[..., 2], 1e-3)
+    uv = np.stack([fx * joints3d[..., 0] / z + cx, fy * joints3d[..., 1] / z + cy], -1)
+    in_image = ((uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0)
+                & (uv[..., 1] <= H - 1) & (joints3d[..., 2] > 0.1))
+    return uv, in_image
+
+
+def _list_people(rng: np.random.Generator, kps: list[np.ndarray], confs: list[np.ndarray]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What a detector lists per frame: the detected people in a random order, zero-padded.
+
+    Args:
+        rng: the order (one permutation of all people per frame, drawn whoever is listed).
+        kps: per person (T, 18, 2) detections, px; the main person first.
+        confs: per person (T, 18) confidences; a person with none > 0 is not listed.
+
+    Returns:
+        people2d (T, P, 18, 2) float32, people_confidence (T, P, 18) float32 and the main
+        person's slot (T,) int64 (-1 when not listed).
+    """
+    T, P = kps[0].shape[0], len(kps)
+    people2d = np.zeros((T, P, N_KPT, 2), np.float32)
+    people_conf = np.zeros((T, P, N_KPT), np.float32)
+    index = np.full(T, -1, np.int64)
+    for t in range(T):
+        slot = 0
+        for i in rng.permutation(P):
+            if np.any(confs[i][t] > 0):
+                people2d[t, slot], people_conf[t, slot] = kps[i][t], confs[i][t]
+                if i == 0:
+                    index[t] = slot
+                slot += 1
+    return people2d, people_conf, index
 
 
 def generate(
@@ -138,8 +239,9 @@ def generate(
     motion_start: float = 0.0,
     yaw_deg: float | None = None,
     with_rgb: bool = True,
+    bystander: bool = False,
 ) -> SyntheticSequence:
-    """Render a synthetic RGB-D sequence of one random person.
+    """Render a synthetic RGB-D sequence of one random person, optionally with a second one.
 
     Args:
         seed: everything random derives from it (same arguments => identical arrays).
@@ -163,6 +265,20 @@ def generate(
         yaw_deg: fixed facing (travel) direction instead of a random one; 0 = facing the
             camera (travelling motions: moving to the camera's right).
         with_rgb: also render the colour images.
+        bystander: add a second random person (own subject and random streams) who walks
+            across the view in front of the main person, stays out of view a while and
+            walks back, in front again or behind (see ``posetrack.synth._bystander``). It is
+            rendered in the same ray cast, so it hides the main person (whose ``visible``,
+            ``keypoints2d`` and ``confidence`` suffer: a person in front acts on the detector
+            like an occluder) and is hidden by it; its own detections (same
+            ``DetectorConfig``, its own noise; a keypoint behind a wall is never detected)
+            go to ``people2d`` with the main person's, in a random order per frame.
+            ``keypoints2d``, ``confidence``, ``joints3d`` and ``person_mask`` stay the main
+            person's; the bystander's ground truth is ``others_joints3d``, its description
+            ``meta["bystander"]``. The main person's subject, motion and scene are those of
+            the same call without bystander, and so is every output until the bystander
+            first comes into view; after that the depth noise differs everywhere (the sensor
+            model draws a content-dependent amount of randomness per frame).
 
     Raises:
         ValueError: naming the bad argument. FileNotFoundError: real motion data missing.
@@ -208,10 +324,28 @@ def generate(
     origins = forward_kinematics(subject, clip.root, clip.rotations)
     kp_world = keypoints_world(subject, origins, clip.rotations)
     joints3d = scene.to_camera(kp_world)
-    z = np.maximum(joints3d[..., 2], 1e-3)
-    joints2d = np.stack([fx * joints3d[..., 0] / z + cx, fy * joints3d[..., 1] / z + cy], -1)
-    in_image = ((joints2d[..., 0] >= 0) & (joints2d[..., 0] <= W - 1) & (joints2d[..., 1] >= 0)
-                & (joints2d[..., 1] <= H - 1) & (joints3d[..., 2] > 0.1))
+    K = (fx, fy, cx, cy)
+    joints2d, in_image = _project_joints(joints3d, K, W, H)
+    n_main = len(subject.primitives)
+    by = None
+    by_prims: range | tuple[()] = ()  # the bystander's primitive indices in the ray cast
+    if bystander:
+        r_by = rng(_BYSTANDER)
+        by_subject = sample_subject(r_by)
+        by_clip, by_info = bystander_motion(r_by, by_subject, scene, n_frames=n_frames, fps=fps)
+        by_origins = forward_kinematics(by_subject, by_clip.root, by_clip.rotations)
+        by_world = keypoints_world(by_subject, by_origins, by_clip.rotations)
+        by_j3d = scene.to_camera(by_world)
+        by_j2d, by_in = _project_joints(by_j3d, K, W, H)
+        by_in &= scene.inside(by_world)  # behind the side wall: gone through a doorway
+        by_prims = range(n_main, n_main + len(by_subject.primitives))
+        by = {
+            "own": tuple(frozenset(n_main + i for i in s) for s in by_subject.kpt_own),
+            "head": BODY_LABEL0 + n_main + [p.name for p in by_subject.primitives].index("head"),
+            "self_vis": np.zeros((n_frames, N_KPT)),
+            "occ": np.zeros((n_frames, N_KPT)),
+            "hidden": np.zeros((n_frames, N_KPT)),
+        }
 
     # Occluders follow a smoothed box around the body (keypoints, head top, soles).
     head_top = origins[:, SEG["head"]] + clip.rotations[:, SEG["head"]] @ np.array(
@@ -235,16 +369,26 @@ def generate(
     person = np.zeros((n_frames, H, W), bool)
     self_vis = np.zeros((n_frames, N_KPT))
     occ = np.zeros((n_frames, N_KPT))
-    K = (fx, fy, cx, cy)
+    hidden = np.zeros((n_frames, N_KPT))
     for t in range(n_frames):
+        # One ray cast for everybody: the main person's primitives first, so its labels are
+        # BODY_LABEL0 + k for k < n_main and the bystander's come after.
         prims = primitives_camera(subject, origins[t], clip.rotations[t], scene)
+        if by is not None:
+            prims += primitives_camera(by_subject, by_origins[t], by_clip.rotations[t], scene)
         ren = render_frame(prims, background, rays, rr, K)
-        person[t] = ren.label >= BODY_LABEL0
+        person[t] = (ren.label >= BODY_LABEL0) & (ren.label < BODY_LABEL0 + n_main)
         R_cam_head = scene.R_cam_world @ clip.rotations[t, SEG["head"]]
         hair = hair_mask(ren, head_label, R_cam_head)
+        others: list[tuple[Subject, np.ndarray]] = []
+        all_hair = hair
+        if by is not None:
+            R_cam_by_head = scene.R_cam_world @ by_clip.rotations[t, SEG["head"]]
+            others.append((by_subject, hair_mask(ren, by["head"], R_cam_by_head)))
+            all_hair = hair | others[0][1]
         if sensor_noise:
             d = simulate_sensor(r_sensor, ren.depth, fx=fx, fy=fy, cx=cx, cy=cy, config=scfg,
-                                normal=ren.normal, hair=hair)
+                                normal=ren.normal, hair=all_hair)
         else:
             d = ideal_sensor(ren.depth, scfg)
         m = rect_mask(rects[t], (H, W))
@@ -252,11 +396,17 @@ def generate(
         d[m] = 0
         depth[t] = d
         if rgb is not None:
-            img = shade(ren, background, subject, hair, r_rgb, floor_rgb, wall_rgb)
+            img = shade(ren, background, subject, hair, r_rgb, floor_rgb, wall_rgb,
+                        others=others)
             img[m] = 0
             rgb[t] = img
-        self_vis[t], occ[t] = _visibility(joints3d[t], joints2d[t], subject.kpt_radius,
-                                          subject.kpt_own, ren.label, ren.depth, m, fx, W, H)
+        self_vis[t], occ[t], hidden[t] = _visibility(
+            joints3d[t], joints2d[t], subject.kpt_radius, subject.kpt_own, ren.label,
+            ren.depth, m, fx, W, H, others=by_prims)
+        if by is not None:
+            by["self_vis"][t], by["occ"][t], by["hidden"][t] = _visibility(
+                by_j3d[t], by_j2d[t], by_subject.kpt_radius, by["own"], ren.label, ren.depth,
+                m, fx, W, H, others=range(n_main))
         if progress and (t % 10 == 0 or t == n_frames - 1):
             el = time.perf_counter() - t_start
             print(f"\rposetrack.synth: frame {t + 1}/{n_frames} ({el:.1f} s)", end="",
@@ -267,11 +417,34 @@ def generate(
                             if in_image[t, k] else False
                             for k, (u, v) in enumerate(joints2d[t])] for t in range(n_frames)])
     visible = in_image & (self_vis >= 0.3) & ~centre_occ
+    # ``hidden`` is ``occ`` without a bystander; with one, a person in front counts as an
+    # occluder for the detector (its miss rate and confidence), not only as self-occlusion.
     if detector_noise:
-        kp2d, conf = simulate_detector(rng(_DETECTOR), joints2d, self_vis, occ, in_image,
+        kp2d, conf = simulate_detector(rng(_DETECTOR), joints2d, self_vis, hidden, in_image,
                                        width=W, height=H, config=dcfg)
     else:
         kp2d, conf = perfect_detector(joints2d, in_image)
+    kps, confs = [kp2d], [conf]
+    by_meta = None
+    if by is not None:
+        if detector_noise:
+            by_kp, by_conf = simulate_detector(rng(_BYSTANDER_DET), by_j2d, by["self_vis"],
+                                               by["hidden"], by_in, width=W, height=H,
+                                               config=dcfg)
+        else:
+            by_kp, by_conf = perfect_detector(by_j2d, by_in)
+        kps.append(by_kp)
+        confs.append(by_conf)
+        by_meta = {
+            "height": by_subject.height,
+            "subject": by_subject.to_dict(),
+            **by_info,
+            "self_visibility": by["self_vis"],
+            "occluded_fraction": by["occ"],
+            "hidden_fraction": by["hidden"],
+        }
+    people2d, people_conf, people_index = _list_people(rng(_PEOPLE_ORDER), kps, confs)
+    others3d = (by_j3d[:, None] if by is not None else np.zeros((n_frames, 0, N_KPT, 3)))
     meta = {
         "motion": motion,
         "motion_info": {k: v for k, v in clip.info.items()},
@@ -293,6 +466,8 @@ def generate(
         "keypoint_names": KEYPOINT_NAMES,
         "self_visibility": self_vis,
         "occluded_fraction": occ,
+        "hidden_fraction": hidden,
+        "bystander": by_meta,
         "generation_seconds": time.perf_counter() - t_start,
     }
     return SyntheticSequence(
@@ -300,4 +475,6 @@ def generate(
         joints2d=joints2d, visible=visible, occluder_masks=occ_masks, person_mask=person,
         intrinsics=intrinsics, fps=float(fps), T_cam_world=scene.T_cam_world,
         floor_plane=scene.floor_plane_camera(), subject=subject.to_dict(), meta=meta,
+        people2d=people2d, people_confidence=people_conf, people_index=people_index,
+        others_joints3d=others3d,
     )

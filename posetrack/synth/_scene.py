@@ -69,13 +69,22 @@ class Scene:
         d = -float(n @ self.t_cam_world)  # the floor passes through the world origin
         return np.array([*n, d])
 
+    def inside(self, p_world: np.ndarray) -> np.ndarray:
+        """(..., 3) world points -> (...) bool: on the room side of the floor and every wall
+        (a point behind a wall cannot be seen, whatever its projection)."""
+        ok = np.ones(p_world.shape[:-1], dtype=bool)
+        for pl in self.planes:
+            ok &= p_world @ np.asarray(pl.normal) >= pl.offset
+        return ok
+
 
 def _intr_np(intr: Intrinsics) -> tuple[float, float, float, float, int, int]:
     return (float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), intr.width,
             intr.height)
 
 
-def _project(intr: Intrinsics, p: np.ndarray) -> np.ndarray:
+def project(intr: Intrinsics, p: np.ndarray) -> np.ndarray:
+    """Pinhole projection of camera-frame points (..., 3), m -> pixels (..., 2) (z >= 1 mm)."""
     fx, fy, cx, cy, _, _ = _intr_np(intr)
     z = np.maximum(p[..., 2], 1e-3)
     return np.stack([fx * p[..., 0] / z + cx, fy * p[..., 1] / z + cy], axis=-1)
@@ -153,7 +162,7 @@ def make_scene(rng: np.random.Generator, intrinsics: Intrinsics, subject: Subjec
         tcw = -Rcw @ C
         shift = np.array([x_off, 0.0, -d])
         p = (pts + shift) @ Rcw.T + tcw
-        uv = _project(intrinsics, p)
+        uv = project(intrinsics, p)
         m = 0.02 * W
         inside = ((uv[..., 0] > m) & (uv[..., 0] < W - 1 - m) & (uv[..., 1] > m)
                   & (uv[..., 1] < H - 1 - m) & (p[..., 2] > 0.5)).all(axis=1)

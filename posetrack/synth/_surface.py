@@ -14,6 +14,7 @@ centre: depth is the z coordinate of the nearest hit (rays have z = 1), like a r
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -238,26 +239,42 @@ def hair_mask(render: Render, head_label: int, R_cam_head: np.ndarray) -> np.nda
 
 def shade(render: Render, background: Background, subject: Subject, hair: np.ndarray,
           rng: np.random.Generator, floor_rgb: tuple[int, int, int],
-          wall_rgb: tuple[int, int, int]) -> np.ndarray:
+          wall_rgb: tuple[int, int, int], *,
+          others: Sequence[tuple[Subject, np.ndarray]] = ()) -> np.ndarray:
     """Simple Lambert-shaded colour image (H, W, 3) uint8, registered to the depth.
 
     Per-part albedo (skin, shirt, trousers, shoes, hair on the top/back of the head), floor
     tiles, one light above and behind the camera plus ambient, mild sensor noise.
+
+    Args:
+        render: the frame; body labels ``BODY_LABEL0 + k`` number the primitives of
+            ``subject`` first, then those of each of ``others`` in turn.
+        background: the static room.
+        subject: the (main) person; ``hair``: (H, W) bool, its hair pixels.
+        rng: sensor noise.
+        floor_rgb, wall_rgb: room albedo.
+        others: further people rendered in the same frame, (subject, hair mask) each.
     """
-    lut = np.zeros((BODY_LABEL0 + len(subject.primitives), 3), dtype=np.float32)
+    people = [(subject, hair), *others]
+    n = sum(len(s.primitives) for s, _ in people)
+    lut = np.zeros((BODY_LABEL0 + n, 3), dtype=np.float32)
     lut[LABEL_FLOOR] = floor_rgb
     lut[LABEL_WALL] = wall_rgb
     lut[LABEL_SIDE_WALL] = np.asarray(wall_rgb) * 0.92
-    for k, prim in enumerate(subject.primitives):
-        lut[BODY_LABEL0 + k] = subject.colors[prim.group]
+    k = BODY_LABEL0
+    for s, _ in people:
+        for prim in s.primitives:
+            lut[k] = s.colors[prim.group]
+            k += 1
     alb = lut[render.label]
     floor = render.label == LABEL_FLOOR
     if floor.any():
         pw = background.p_world[floor]
         tiles = (np.floor(pw[:, 0] / 0.5) + np.floor(pw[:, 2] / 0.5)) % 2
         alb[floor] *= (0.9 + 0.1 * tiles)[:, None]
-    if hair.any():
-        alb[hair] = subject.colors["hair"]
+    for s, h in people:
+        if h.any():
+            alb[h] = s.colors["hair"]
     light = np.array([0.25, -0.85, -0.6], dtype=np.float32)
     light /= np.linalg.norm(light)
     lam = np.clip(render.normal @ light, 0.0, 1.0)
