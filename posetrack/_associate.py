@@ -212,12 +212,12 @@ def choose_person(cands: Candidates, rule: PersonRule = "auto", *, min_keypoints
     Raises:
         ValueError: an unknown rule, or an index outside the frame's list.
     """
-    P = len(cands)
     if isinstance(rule, (int, np.integer)) and not isinstance(rule, bool):
-        if not 0 <= int(rule) < P:
+        listed = int(cands.detected.any(axis=1).sum())  # padding (no keypoint) comes last
+        if not 0 <= int(rule) < listed:
             raise ValueError(
-                f"person index {int(rule)} is not among the {P} people detected in the first "
-                "frame with detections (indices 0.." + f"{P - 1})"
+                f"person index {int(rule)} is not among the {listed} people detected in the "
+                f"first frame with detections (indices 0..{listed - 1})"
             )
         return int(rule)
     if rule not in PERSON_RULES:

@@ -370,6 +370,8 @@ class Tracker:
             return int(np.argmax(score)) if (score > 0).any() or len(cands) == 1 else -1
         fs = self.follow
         if self._reference is None:
+            if not cands.usable(fs.min_keypoints).any():
+                return -1
             return choose_person(cands, self.person_rule, min_keypoints=fs.min_keypoints)
         cost = match_costs(cands, self._reference, self.intrinsics, min_keypoints=fs.min_keypoints)
         ok = cost < fs.gate_after(self._since_reference)
@@ -653,14 +655,17 @@ class Tracker:
             d = check_depth(self.intrinsics, depths[i], self.depth_scale, f"frame {i}")
             kp_all, conf_all = check_people(keypoints2d[i], confidence[i], f"frame {i}")
             cands = lift_candidates(d, kp_all, conf_all, self.intrinsics)
+            fs = self.follow or FollowSettings()
             p = -1
-            if len(cands) and self.follow is None:
+            if not cands.usable(fs.min_keypoints).any():
+                pass
+            elif self.follow is None:
                 p = int(np.argmax(detection_score(cands.keypoints2d, cands.confidence)))
-            elif len(cands) and ref is None:
-                p = choose_person(cands, self.person_rule, min_keypoints=self.follow.min_keypoints)
-            elif len(cands):
-                cost = match_costs(cands, ref, self.intrinsics)
-                ok = cost < self.follow.gate_after(since)
+            elif ref is None:
+                p = choose_person(cands, self.person_rule, min_keypoints=fs.min_keypoints)
+            else:
+                cost = match_costs(cands, ref, self.intrinsics, min_keypoints=fs.min_keypoints)
+                ok = cost < fs.gate_after(since)
                 p = int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
             if p >= 0 and cands.has_depth[p].sum() >= 3:
                 ref = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)

@@ -83,6 +83,13 @@ def test_initial_choice_rules(two_people):
     assert pt.choose_person(c_part, "auto") == 0
     with pytest.raises(ValueError, match="person index 2"):
         pt.choose_person(c, 2)
+    # Padding (a slot without keypoints, after the listed people) is not a person.
+    padded = pt.lift_candidates(
+        depth, np.concatenate([kp, 0 * kp[:1]]), np.concatenate([conf, 0 * conf[:1]]), INTR
+    )
+    assert pt.choose_person(padded, 1) == 1
+    with pytest.raises(ValueError, match="among the 2 people"):
+        pt.choose_person(padded, 2)
     with pytest.raises(ValueError, match="one of"):
         pt.choose_person(c, "tallest")
     none = pt.lift_candidates(depth, kp, np.zeros_like(conf), INTR)

@@ -35,6 +35,7 @@ def _generate(args) -> int:
     seq = synth.generate(
         args.seed, motion=args.motion, n_frames=args.frames, occlusion_level=args.occlusion,
         width=args.width, height=args.height, progress=not args.quiet,
+        bystander=args.second_person,
     )  # fmt: skip
     synth.save(seq, args.out, overwrite=args.overwrite)
     print(f"wrote {len(seq.depth)} frames to {args.out}")
@@ -312,6 +313,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--width", type=int, default=640, help="image width (default: %(default)s)")
     g.add_argument("--height", type=int, default=480, help="image height (default: %(default)s)")
     g.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    g.add_argument(
+        "--second-person", action="store_true",
+        help="a second person walks across the view, leaves and comes back (the keypoint "
+        "files list both, in random order)",
+    )  # fmt: skip
     g.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_generate)

@@ -1,0 +1,160 @@
+#!/usr/bin/env python
+"""One person means one person: identity jumps with a second person walking through the view.
+
+Each scene is a ``posetrack.synth`` recording with ``bystander=True``: the person to follow
+acts in place (a built-in motion), a second random person walks across in front of them,
+leaves the view and comes back (in front again or behind); the detector lists both people in
+random order each frame, as OpenPose does without its tracker. Every scene is tracked three
+ways with the shipped MHT_h:
+
+* **follow** (the default): one person is chosen at the start and followed
+  (``posetrack.Tracker``'s association, gate and re-acquisition);
+* **per-frame**: ``follow=None``, each frame's most prominent detection (what the tracker did
+  before, and what ``posetrack.io``'s per-frame choice still gives);
+* **alone**: the same seed without the second person (same body, motion, room, sensor and
+  detector noise where the bystander does not interfere): the reference D.
+
+Identity per frame = whose ground truth the output is nearest (``posetrack.followed_identity``);
+a jump = a change between consecutive estimated frames (``posetrack.identity_jumps``).
+
+    python benchmarks/people.py                 # reported seeds 0-19 (~35 min on 2 cores)
+    python benchmarks/people.py --quick         # 4 scenes
+    python benchmarks/people.py --tuning        # tuning seeds 100-119 (what defaults may see)
+
+Prints the table and writes ``people.json`` into ``--out`` (default ``benchmarks/results``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from seeds import REPORT_SEEDS, TUNING_SEEDS
+
+import posetrack as pt
+from posetrack.app import machine_summary
+
+MOTIONS = ("wave", "box", "reach", "squat", "walk", "turn")
+
+
+def scene_result(
+    seed: int, motion: str, frames: int, size: tuple[int, int], ablate: bool = False
+) -> dict:
+    """Track one scene three ways; identity jumps and D of each."""
+    w, h = size
+    kw = dict(motion=motion, n_frames=frames, width=w, height=h, with_rgb=False)
+    seq = pt.synth.generate(seed, bystander=True, **kw)
+    alone = pt.synth.generate(seed, **kw)
+    truth = np.concatenate([seq.joints3d[:, None], seq.others_joints3d], axis=1)
+    config = pt.TrackerConfig()
+    out: dict = {"seed": seed, "motion": motion, "frames": frames}
+    runs = {
+        "follow": (seq.people2d, seq.people_confidence, pt.FollowSettings(), seq.joints3d),
+        "per-frame": (seq.people2d, seq.people_confidence, None, seq.joints3d),
+        "alone": (alone.keypoints2d, alone.confidence, pt.FollowSettings(), alone.joints3d),
+    }
+    if ablate:  # the other people's pixels left in the depth the tracker fits
+        no_mask = pt.FollowSettings(mask_others=False)
+        runs["follow, no mask"] = (seq.people2d, seq.people_confidence, no_mask, seq.joints3d)
+    for name, (kp, conf, follow, gt) in runs.items():
+        t0 = time.perf_counter()
+        res = pt.track(seq.depth if name != "alone" else alone.depth, kp, conf,
+                       seq.intrinsics, config, follow=follow)  # fmt: skip
+        acc = pt.accuracy(res.keypoints3d, gt)
+        ident = pt.followed_identity(res.keypoints3d, truth)
+        out[name] = {
+            "jumps": pt.identity_jumps(ident) if name != "alone" else 0,
+            "jump_frames": np.flatnonzero(np.diff(ident[ident >= 0]) != 0).tolist()
+            if name != "alone"
+            else [],
+            "frames_on_other": int(np.sum(ident > 0)) if name != "alone" else 0,
+            "D_mm": acc.mean_mm,
+            "coverage": acc.coverage,
+            "lost": int(np.sum(res.status == pt.LOST)),
+            "others_ignored": res.others_ignored,
+            "seconds": time.perf_counter() - t0,
+        }
+    out["both_listed"] = int(np.sum((seq.people_confidence > 0).any(-1).sum(-1) >= 2))
+    return out
+
+
+def summarise(scenes: list[dict]) -> dict:
+    total = sum(s["frames"] for s in scenes)
+    summary = {}
+    for name in [n for n in scenes[0] if n in ("follow", "per-frame", "follow, no mask")]:
+        jumps = np.array([s[name]["jumps"] for s in scenes])
+        ratio = np.array([s[name]["D_mm"] / s["alone"]["D_mm"] for s in scenes])
+        summary[name] = {
+            "scenes_without_jumps": float(np.mean(jumps == 0)),
+            "jumps": int(jumps.sum()),
+            "jumps_per_1000_frames": 1000.0 * jumps.sum() / total,
+            "D_mm": float(np.mean([s[name]["D_mm"] for s in scenes])),
+            "D_ratio_to_alone_mean": float(ratio.mean()),
+            "D_ratio_to_alone_worst": float(ratio.max()),
+            "worst_scene": scenes[int(ratio.argmax())]["seed"],
+            "frames_on_other": int(sum(s[name]["frames_on_other"] for s in scenes)),
+        }
+    summary["alone"] = {"D_mm": float(np.mean([s["alone"]["D_mm"] for s in scenes]))}
+    summary["frames"] = total
+    return summary
+
+
+def print_table(scenes: list[dict], summary: dict) -> None:
+    print(f"{'seed':>5} {'motion':<7} {'both':>5} | {'jumps':>5} {'D':>6} {'lost':>5} | "
+          f"{'jumps':>5} {'D':>6} | {'alone D':>7}")  # fmt: skip
+    print(f"{'':>5} {'':<7} {'':>5} | {'follow':^18} | {'per-frame':^12} |")
+    for s in scenes:
+        f, p, a = s["follow"], s["per-frame"], s["alone"]
+        print(f"{s['seed']:>5} {s['motion']:<7} {s['both_listed']:>5} | {f['jumps']:>5} "
+              f"{f['D_mm']:>6.1f} {f['lost']:>5} | {p['jumps']:>5} {p['D_mm']:>6.1f} | "
+              f"{a['D_mm']:>7.1f}")  # fmt: skip
+    for name in [n for n in summary if n not in ("alone", "frames")]:
+        m = summary[name]
+        print(f"{name:>10}: {m['scenes_without_jumps']:.0%} of scenes without a jump, "
+              f"{m['jumps']} jumps ({m['jumps_per_1000_frames']:.2f} per 1000 frames), "
+              f"D {m['D_mm']:.1f} mm = {m['D_ratio_to_alone_mean']:.2f}x alone on average, "
+              f"worst {m['D_ratio_to_alone_worst']:.2f}x (seed {m['worst_scene']})")  # fmt: skip
+    print(f"     alone: D {summary['alone']['D_mm']:.1f} mm; {summary['frames']} frames")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="4 scenes")
+    ap.add_argument("--tuning", action="store_true", help="tuning seeds instead of reported")
+    ap.add_argument("--scenes", type=int, default=20)
+    ap.add_argument("--frames", type=int, default=240)
+    ap.add_argument("--ablate", action="store_true", help="also: follow without masking others")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
+    args = ap.parse_args(argv)
+    n = 4 if args.quick else args.scenes
+    seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[:n]
+    print(machine_summary(), file=sys.stderr)
+    scenes = []
+    for i, seed in enumerate(seeds):
+        motion = MOTIONS[i % len(MOTIONS)]
+        scenes.append(scene_result(seed, motion, args.frames, (320, 240), args.ablate))
+        s = scenes[-1]
+        print(f"[{i + 1}/{n}] seed {seed} {motion}: follow {s['follow']['jumps']} jumps "
+              f"D {s['follow']['D_mm']:.1f}, per-frame {s['per-frame']['jumps']} jumps, alone D "
+              f"{s['alone']['D_mm']:.1f}", file=sys.stderr, flush=True)  # fmt: skip
+    summary = summarise(scenes)
+    print_table(scenes, summary)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    name = "people" + ("_tuning" if args.tuning else "") + ("_quick" if args.quick else "")
+    name += "_ablate" if args.ablate else ""
+    doc = {"machine": machine_summary(), "seeds": seeds, "summary": summary, "scenes": scenes,
+           "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)"}  # fmt: skip
+    tmp = out / f".{name}.json.tmp"
+    tmp.write_text(json.dumps(doc, indent=1))
+    tmp.replace(out / f"{name}.json")
+    print(f"wrote {out / (name + '.json')}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
