@@ -17,7 +17,7 @@ ways with the shipped MHT_h:
 Identity per frame = whose ground truth the output is nearest (``posetrack.followed_identity``);
 a jump = a change between consecutive estimated frames (``posetrack.identity_jumps``).
 
-    python benchmarks/people.py                 # reported seeds 0-19 (~35 min on 2 cores)
+    python benchmarks/people.py                 # reported seeds 0-19 (~40 min on 2 cores)
     python benchmarks/people.py --quick         # 4 scenes
     python benchmarks/people.py --tuning        # tuning seeds 100-119 (what defaults may see)
 
@@ -38,20 +38,24 @@ from seeds import REPORT_SEEDS, TUNING_SEEDS
 import posetrack as pt
 from posetrack.app import machine_summary
 
-MOTIONS = ("wave", "box", "reach", "squat", "walk", "turn")
+#: The followed person's motion cycles through these (walk_across: that person travels too),
+#: and the occlusion level through 0, 1, 2 (occluders over the followed person).
+MOTIONS = ("wave", "box", "reach", "squat", "walk", "turn", "walk_across")
+LEVELS = (0, 1, 2)
 
 
 def scene_result(
-    seed: int, motion: str, frames: int, size: tuple[int, int], ablate: bool = False
+    seed: int, motion: str, level: int, frames: int, size: tuple[int, int], ablate: bool = False
 ) -> dict:
     """Track one scene three ways; identity jumps and D of each."""
     w, h = size
-    kw = dict(motion=motion, n_frames=frames, width=w, height=h, with_rgb=False)
+    kw = dict(motion=motion, n_frames=frames, width=w, height=h, with_rgb=False,
+              occlusion_level=level)  # fmt: skip
     seq = pt.synth.generate(seed, bystander=True, **kw)
     alone = pt.synth.generate(seed, **kw)
     truth = np.concatenate([seq.joints3d[:, None], seq.others_joints3d], axis=1)
     config = pt.TrackerConfig()
-    out: dict = {"seed": seed, "motion": motion, "frames": frames}
+    out: dict = {"seed": seed, "motion": motion, "level": level, "frames": frames}
     runs = {
         "follow": (seq.people2d, seq.people_confidence, pt.FollowSettings(), seq.joints3d),
         "per-frame": (seq.people2d, seq.people_confidence, None, seq.joints3d),
@@ -104,14 +108,14 @@ def summarise(scenes: list[dict]) -> dict:
 
 
 def print_table(scenes: list[dict], summary: dict) -> None:
-    print(f"{'seed':>5} {'motion':<7} {'both':>5} | {'jumps':>5} {'D':>6} {'lost':>5} | "
-          f"{'jumps':>5} {'D':>6} | {'alone D':>7}")  # fmt: skip
-    print(f"{'':>5} {'':<7} {'':>5} | {'follow':^18} | {'per-frame':^12} |")
+    print(f"{'seed':>5} {'motion':<11} {'occ':>3} {'both':>5} | {'jumps':>5} {'D':>6} "
+          f"{'lost':>5} | {'jumps':>5} {'D':>6} | {'alone D':>7}")  # fmt: skip
+    print(f"{'':>5} {'':<11} {'':>3} {'':>5} | {'follow':^18} | {'per-frame':^12} |")
     for s in scenes:
         f, p, a = s["follow"], s["per-frame"], s["alone"]
-        print(f"{s['seed']:>5} {s['motion']:<7} {s['both_listed']:>5} | {f['jumps']:>5} "
-              f"{f['D_mm']:>6.1f} {f['lost']:>5} | {p['jumps']:>5} {p['D_mm']:>6.1f} | "
-              f"{a['D_mm']:>7.1f}")  # fmt: skip
+        print(f"{s['seed']:>5} {s['motion']:<11} {s['level']:>3} {s['both_listed']:>5} | "
+              f"{f['jumps']:>5} {f['D_mm']:>6.1f} {f['lost']:>5} | {p['jumps']:>5} "
+              f"{p['D_mm']:>6.1f} | {a['D_mm']:>7.1f}")  # fmt: skip
     for name in [n for n in summary if n not in ("alone", "frames")]:
         m = summary[name]
         print(f"{name:>10}: {m['scenes_without_jumps']:.0%} of scenes without a jump, "
@@ -135,8 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     print(machine_summary(), file=sys.stderr)
     scenes = []
     for i, seed in enumerate(seeds):
-        motion = MOTIONS[i % len(MOTIONS)]
-        scenes.append(scene_result(seed, motion, args.frames, (320, 240), args.ablate))
+        motion, level = MOTIONS[i % len(MOTIONS)], LEVELS[i % len(LEVELS)]
+        scenes.append(scene_result(seed, motion, level, args.frames, (320, 240), args.ablate))
         s = scenes[-1]
         print(f"[{i + 1}/{n}] seed {seed} {motion}: follow {s['follow']['jumps']} jumps "
               f"D {s['follow']['D_mm']:.1f}, per-frame {s['per-frame']['jumps']} jumps, alone D "
