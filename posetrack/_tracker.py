@@ -20,6 +20,7 @@ from jaxtyping import Array
 
 from . import _body as body
 from ._associate import (
+    PERSON_RULES,
     Candidates,
     FollowSettings,
     PersonRule,
@@ -275,12 +276,11 @@ class Tracker:
             raise TypeError(
                 f"Tracker: follow must be posetrack.FollowSettings or None, got {type(follow)}"
             )
-        if not (isinstance(person, (int, np.integer)) and not isinstance(person, bool)):
-            if person not in ("auto", "largest", "closest"):
-                raise ValueError(
-                    "Tracker: person must be 'auto', 'largest', 'closest' or an index, got "
-                    f"{person!r}"
-                )
+        is_index = isinstance(person, (int, np.integer)) and not isinstance(person, bool)
+        if (is_index and person < 0) or (not is_index and person not in PERSON_RULES):
+            raise ValueError(
+                f"Tracker: person must be one of {PERSON_RULES} or an index >= 0, got {person!r}"
+            )
         self.person_rule = person
         self.follow = follow
         self.config = config or TrackerConfig()

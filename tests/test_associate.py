@@ -163,3 +163,12 @@ def test_lifting_matches_the_trackers_own_lifting(two_people):
         np.testing.assert_array_equal(c.detected[p], np.asarray(lm.detected))
         np.testing.assert_array_equal(c.has_depth[p], np.asarray(lm.has_depth))
         np.testing.assert_allclose(c.points3d[p], np.asarray(lm.points3d), atol=1e-5)
+
+
+def test_tracker_rejects_a_bad_person_rule_or_follow_settings():
+    with pytest.raises(ValueError, match="person must be one of"):
+        pt.Tracker(INTR, person="tallest")
+    with pytest.raises(ValueError, match="index >= 0"):
+        pt.Tracker(INTR, person=-1)
+    with pytest.raises(TypeError, match="FollowSettings"):
+        pt.Tracker(INTR, follow={"gate": 0.3})
