@@ -10,9 +10,11 @@ between people whenever a second person is in view.
   the closest, or a given index.
 * **Association** (:func:`match_costs`): each detection's keypoints are lifted with the depth
   map (the median of valid depths in a small window, as the tracker's own lifting) and
-  compared with the track's last 3D keypoints: the cost is the median over keypoints of the
-  3D distance where the detection has depth, and of the 2D distance converted to metres at the
-  track's depth where it has not. A detection is the tracked person only if its cost is under
+  compared with the followed detection's lifted keypoints when it was last seen (where the
+  person was *seen*, not where the fit put them: a poor fit must not move the gate off the
+  person): the cost is the median over keypoints of the 3D distance where both have depth,
+  and of the 2D distance converted to metres at the reference depth where only the reference
+  has. A detection is the tracked person only if its cost is under
   a gate, which widens while the person is unseen (:meth:`FollowSettings.gate_after`).
   Other detections are ignored (and their pixels removed from the depth the tracker fits,
   :func:`other_people_mask`: their depth is not the tracked body's).
@@ -70,9 +72,8 @@ class FollowSettings:
 
     gate: float = 0.35
     """A detection is the tracked person when its cost is below this (m). The cost of the
-    right person is its tracking error plus the body's half-thickness (the depth camera sees
-    the surface, the track holds joint centres) plus a frame of motion: typically 0.05-0.2 m.
-    A second person is a body width or more away."""
+    right person is a frame of motion plus keypoint and depth noise (surface against surface):
+    typically 0.03-0.12 m. A second person is a body width or more away."""
     gate_growth: float = 0.02
     """Metres the gate widens per frame the person is not found (0.6 m/s at 30 fps)."""
     gate_max: float = 1.5
@@ -258,7 +259,8 @@ def match_costs(
 
     Args:
         cands: the frame's lifted detections.
-        reference3d: ``(18, 3)`` the track's keypoints (camera frame, m); NaN rows ignored.
+        reference3d: ``(18, 3)`` where the person was (camera frame, m), e.g. the lifted
+            keypoints of its last detection; NaN rows ignored.
         intrinsics: the depth camera.
         min_keypoints: fewer comparable keypoints give ``inf``.
 

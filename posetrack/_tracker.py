@@ -243,12 +243,13 @@ class Tracker:
     order, P varying from frame to frame). The tracker chooses one person when it first
     initialises (``person``: ``"auto"`` = the most complete detection, the closest of those;
     ``"largest"``, ``"closest"`` or an index into the first frame's list) and then follows it:
-    each frame the detection nearest the track's 3D keypoints is taken if it lies within a
-    gate (``follow``, :class:`FollowSettings`), the others are ignored and their pixels removed
-    from the depth the tracker fits. When only other people are in view the frame is 'lost'
-    (the last pose is held); after ``config.lost_patience`` such frames the track restarts,
-    but only on a detection near the last position and consistent with the body proportions
-    measured while tracking. ``follow=None`` takes the highest-scoring detection every frame
+    each frame the detection nearest (in 3D) to where the person was last seen is taken if it
+    lies within a gate (``follow``, :class:`FollowSettings`), the others are ignored and their
+    pixels removed from the depth the tracker fits. When only other people are in view the frame
+    is 'lost' (the last pose is held); after ``config.lost_patience`` such frames the track
+    restarts, but only on a detection near the last position and consistent with the body
+    proportions measured while tracking. ``follow=None`` takes the highest-scoring detection
+    every frame
     (what a per-frame choice does: the track hops between people; kept for comparison).
     """
 
@@ -307,7 +308,8 @@ class Tracker:
 
     def _forget_person(self) -> None:
         # Identity of the followed person: survives a track loss, not a reset().
-        self._reference: np.ndarray | None = None  # (18, 3) last tracked keypoints
+        # (18, 3) the followed detection's lifted keypoints when last seen (NaN: no depth)
+        self._reference: np.ndarray | None = None
         self._since_reference = 0  # frames since _reference was updated
         self._lengths: list[np.ndarray] = []  # body segment lengths while tracked
         self._person = -1
@@ -390,6 +392,12 @@ class Tracker:
         cands = lift_candidates(depth_m, kp_all, conf_all, self.intrinsics)
         p = self._select_person(cands)
         self._person = p
+        self._since_reference += 1
+        if p >= 0 and cands.has_depth[p].sum() >= (self.follow or FollowSettings()).min_keypoints:
+            # Where the person was seen, not where the fit put them: a poor fit (a bad first
+            # initialisation, a lost frame) must not move the gate off the person.
+            self._reference = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
+            self._since_reference = 0
         if p < 0:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
@@ -401,10 +409,8 @@ class Tracker:
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
 
-    def _remember(self, cands: Candidates, p: int, keypoints3d: np.ndarray) -> None:
-        """A tracked frame: the followed person's keypoints and proportions."""
-        self._reference = np.asarray(keypoints3d, np.float64)
-        self._since_reference = 0
+    def _remember(self, cands: Candidates, p: int) -> None:
+        """A tracked frame: the followed person's body proportions."""
         if p >= 0 and len(self._lengths) < 200:
             self._lengths.append(segment_lengths(cands.points3d[p], cands.has_depth[p]))
 
@@ -471,9 +477,6 @@ class Tracker:
         )
         self._lost_run = 0
         self._ever_initialized = True
-        if self._reference is None:  # the first start: this is the person to follow
-            self._reference = np.asarray(kps, np.float64)
-            self._since_reference = 0
         return True
 
     def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
@@ -512,14 +515,12 @@ class Tracker:
             if self._reference is None or not cands.usable(fs.min_keypoints).any():
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
             # Only other people in view: the followed person is lost this frame.
-            self._since_reference += 1
             if self._state is not None:
                 self._lost_run += 1
                 if self._lost_run >= self.config.lost_patience:
                     self._drop_track()
             return None, LOST
         if self._state is None and not self._initialize(depth_fit, kp, conf):
-            self._since_reference += 1
             return None, NO_OBSERVATION
         t0 = time.perf_counter()
         state, est = step(
@@ -532,7 +533,6 @@ class Tracker:
         else:
             self._step_times.append(dt)
         self._step_calls += 1
-        self._since_reference += 1
         if int(est.num_3d) < self.config.min_landmarks:
             # Too little to fit: hold the previous pose, keep the hypotheses.
             return est, NO_OBSERVATION
@@ -544,7 +544,7 @@ class Tracker:
                 self._drop_track()
             return est, LOST
         self._lost_run = 0
-        self._remember(cands, p, np.asarray(est.keypoints3d))
+        self._remember(cands, p)
         return est, TRACKED
 
     def run(
