@@ -130,16 +130,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="4 scenes")
     ap.add_argument("--tuning", action="store_true", help="tuning seeds instead of reported")
     ap.add_argument("--scenes", type=int, default=20)
+    ap.add_argument("--start", type=int, default=0, help="skip this many seeds of the range")
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--ablate", action="store_true", help="also: follow without masking others")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = ap.parse_args(argv)
     n = 4 if args.quick else args.scenes
-    seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[:n]
+    seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[args.start : args.start + n]
     print(machine_summary(), file=sys.stderr)
     scenes = []
     for i, seed in enumerate(seeds):
-        motion, level = MOTIONS[i % len(MOTIONS)], LEVELS[i % len(LEVELS)]
+        k = args.start + i  # the motion and level follow the seed's place in its range
+        motion, level = MOTIONS[k % len(MOTIONS)], LEVELS[k % len(LEVELS)]
         scenes.append(scene_result(seed, motion, level, args.frames, (320, 240), args.ablate))
         s = scenes[-1]
         print(f"[{i + 1}/{n}] seed {seed} {motion}: follow {s['follow']['jumps']} jumps "
@@ -151,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     name = "people" + ("_tuning" if args.tuning else "") + ("_quick" if args.quick else "")
     name += "_ablate" if args.ablate else ""
+    name += f"_from{args.start}" if args.start else ""
     doc = {"machine": machine_summary(), "seeds": seeds, "summary": summary, "scenes": scenes,
            "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)"}  # fmt: skip
     tmp = out / f".{name}.json.tmp"

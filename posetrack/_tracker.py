@@ -393,11 +393,8 @@ class Tracker:
         p = self._select_person(cands)
         self._person = p
         self._since_reference += 1
-        if p >= 0 and cands.has_depth[p].sum() >= (self.follow or FollowSettings()).min_keypoints:
-            # Where the person was seen, not where the fit put them: a poor fit (a bad first
-            # initialisation, a lost frame) must not move the gate off the person.
-            self._reference = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
-            self._since_reference = 0
+        if p >= 0:
+            self._update_reference(cands, p)
         if p < 0:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
@@ -408,6 +405,33 @@ class Tracker:
             if mask.any():
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
+
+    def _update_reference(self, cands: Candidates, p: int) -> None:
+        """Move the reference to where the followed detection is seen this frame.
+
+        Where the person was *seen*, not where the fit put them: a poor fit (a bad first
+        initialisation, lost frames while the person walks on) must not move the gate off the
+        person. But a keypoint of a half-hidden person is often lifted onto whoever hides it;
+        such a keypoint must not drag the reference onto the other person. So only keypoints
+        within the gate of their reference position update it; the others (and those never
+        measured) move with the median displacement of the consistent ones.
+        """
+        fs = self.follow or FollowSettings()
+        lifted = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
+        if self._reference is None:
+            if np.isfinite(lifted).all(axis=1).sum() >= fs.min_keypoints:
+                self._reference, self._since_reference = lifted, 0
+            return
+        ref = self._reference
+        both = np.isfinite(lifted).all(axis=1) & np.isfinite(ref).all(axis=1)
+        dist = np.linalg.norm(np.where(both[:, None], lifted - ref, 0.0), axis=1)
+        consistent = both & (dist < fs.gate_after(self._since_reference))
+        if consistent.sum() < fs.min_keypoints:
+            return  # nothing trustworthy seen: the gate keeps widening
+        shift = np.median(lifted[consistent] - ref[consistent], axis=0)
+        new_only = np.isfinite(lifted).all(axis=1) & ~np.isfinite(ref).all(axis=1)
+        self._reference = np.where((consistent | new_only)[:, None], lifted, ref + shift)
+        self._since_reference = 0
 
     def _remember(self, cands: Candidates, p: int) -> None:
         """A tracked frame: the followed person's body proportions."""
