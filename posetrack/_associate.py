@@ -23,6 +23,9 @@ between people whenever a second person is in view.
   within the widened gate of the last tracked position; when none is, the frame stays lost
   rather than jumping to whoever else is in view.
 
+:class:`PersonFollower` holds the followed person's identity (reference, body proportions)
+and applies these rules; the tracker and its body-shape pre-pass each run one.
+
 No JAX here: a handful of people per frame, a few hundred numbers; the per-frame tracker step
 stays one jitted call.
 """
@@ -370,3 +373,101 @@ def other_people_mask(
         return np.zeros((H, W), bool)
     d = np.asarray(depth_m, np.float64)
     return (d >= np.asarray(lo)[labels]) & (d <= np.asarray(hi)[labels]) & (d > 0)
+
+
+class PersonFollower:
+    """Who is followed, frame after frame: the one place that decides it.
+
+    Holds the person's identity: the reference (the followed detection's lifted keypoints
+    where it was last seen), the frames since it was updated, and the body proportions
+    measured while tracked. :class:`~posetrack.Tracker` keeps one, and its body-shape pre-pass
+    runs a fresh one over the first frames, so both follow by the same rules.
+    """
+
+    def __init__(self, settings: FollowSettings | None, rule: PersonRule, intrinsics: Intrinsics):
+        self.settings = settings
+        """None: no following, each frame's most prominent detection (the per-frame choice)."""
+        self.rule = rule
+        self.intrinsics = intrinsics
+        self.reference: np.ndarray | None = None
+        """``(18, 3)`` where the person was last seen (lifted keypoints; NaN = never with
+        depth); None until a person is chosen."""
+        self.since = 0
+        """Frames since :attr:`reference` was updated."""
+        self.lengths: list[np.ndarray] = []
+        """Body segment lengths (:func:`segment_lengths`) from tracked frames."""
+
+    @property
+    def min_keypoints(self) -> int:
+        return (self.settings or FollowSettings()).min_keypoints
+
+    def signature(self) -> np.ndarray | None:
+        """The person's median segment lengths, once 5 tracked frames measured them."""
+        if len(self.lengths) < 5:
+            return None
+        return quiet_nanmedian(np.stack(self.lengths), axis=0)
+
+    def select(self, cands: Candidates, *, reacquiring: bool = False) -> int:
+        """The index of the followed person among this frame's detections, or -1.
+
+        Args:
+            cands: the frame's lifted detections.
+            reacquiring: the track was dropped; a candidate must also match the body
+                proportions (when they are known and measurable).
+        """
+        if self.settings is None:  # per-frame choice: the most prominent detection
+            score = detection_score(cands.keypoints2d, cands.confidence)
+            return int(np.argmax(score)) if (score > 0).any() or len(cands) == 1 else -1
+        if not self.usable(cands):
+            return -1
+        fs = self.settings
+        if self.reference is None:
+            return choose_person(cands, self.rule, min_keypoints=fs.min_keypoints)
+        cost = match_costs(cands, self.reference, self.intrinsics, min_keypoints=fs.min_keypoints)
+        ok = cost < fs.gate_after(self.since)
+        signature = self.signature()
+        if reacquiring and signature is not None and ok.any():
+            # Inconclusive (too few segments measured) is not a veto.
+            mismatch = shape_mismatch(segment_lengths(cands.points3d, cands.has_depth), signature)
+            ok &= ~(mismatch > fs.shape_tolerance)
+        return int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
+
+    def usable(self, cands: Candidates) -> bool:
+        """Whether anyone in the frame has enough keypoints to be considered."""
+        return bool(cands.usable(self.min_keypoints).any())
+
+    def observe(self, cands: Candidates, p: int) -> None:
+        """One more frame, in which detection ``p`` (-1: none) was the followed person.
+
+        The reference moves to where the person is *seen*, not where a fit put them: a poor
+        fit (a bad first initialisation, lost frames while the person walks on) must not move
+        the gate off the person. But a keypoint of a half-hidden person is often lifted onto
+        whoever hides it and must not drag the reference onto that person. So only keypoints
+        within the gate of their reference position update it; the others (and those never
+        measured) move with the median displacement of the consistent ones.
+        """
+        self.since += 1
+        if p < 0:
+            return
+        lifted = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
+        seen = np.isfinite(lifted).all(axis=1)
+        if self.reference is None:
+            if seen.sum() >= self.min_keypoints:
+                self.reference, self.since = lifted, 0
+            return
+        ref = self.reference
+        known = np.isfinite(ref).all(axis=1)
+        both = seen & known
+        dist = np.linalg.norm(np.where(both[:, None], lifted - ref, 0.0), axis=1)
+        gate = (self.settings or FollowSettings()).gate_after(self.since)
+        consistent = both & (dist < gate)
+        if consistent.sum() < self.min_keypoints:
+            return  # nothing trustworthy seen: the gate keeps widening
+        shift = np.median(lifted[consistent] - ref[consistent], axis=0)
+        self.reference = np.where((consistent | (seen & ~known))[:, None], lifted, ref + shift)
+        self.since = 0
+
+    def tracked(self, cands: Candidates, p: int) -> None:
+        """Detection ``p`` was fitted and tracked: record the body's proportions."""
+        if len(self.lengths) < 200:
+            self.lengths.append(segment_lengths(cands.points3d[p], cands.has_depth[p]))

@@ -23,15 +23,10 @@ from ._associate import (
     PERSON_RULES,
     Candidates,
     FollowSettings,
+    PersonFollower,
     PersonRule,
-    choose_person,
-    detection_score,
     lift_candidates,
-    match_costs,
     other_people_mask,
-    quiet_nanmedian,
-    segment_lengths,
-    shape_mismatch,
 )
 from ._camera import Intrinsics
 from ._config import TrackerConfig
@@ -172,10 +167,8 @@ def check_frame(
         raise ValueError(
             f"{where}: confidence must have shape (18,), got {None if conf is None else conf.shape}"
         )
-    bad = ~np.isfinite(kp).all(axis=-1) | ~np.isfinite(conf)
-    conf = np.where(bad, 0.0, conf)  # non-finite keypoints are missing, never NaN poses
-    kp = np.where(bad[:, None], 0.0, kp)
-    return depth_m, kp.astype(np.float32), conf.astype(np.float32)
+    kp, conf = check_people(kp, conf, where)
+    return depth_m, kp[0], conf[0]
 
 
 def check_people(keypoints2d, confidence, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -200,7 +193,7 @@ def check_people(keypoints2d, confidence, where: str) -> tuple[np.ndarray, np.nd
         )
     kp, conf = kp.reshape(-1, 18, 2), conf.reshape(-1, 18)
     bad = ~np.isfinite(kp).all(axis=-1) | ~np.isfinite(conf)
-    conf = np.where(bad, 0.0, conf)
+    conf = np.where(bad, 0.0, conf)  # non-finite keypoints are missing, never NaN poses
     kp = np.where(bad[..., None], 0.0, kp)
     return kp.astype(np.float32), conf.astype(np.float32)
 
@@ -249,8 +242,8 @@ class Tracker:
     is 'lost' (the last pose is held); after ``config.lost_patience`` such frames the track
     restarts, but only on a detection near the last position and consistent with the body
     proportions measured while tracking. ``follow=None`` takes the highest-scoring detection
-    every frame
-    (what a per-frame choice does: the track hops between people; kept for comparison).
+    every frame (what a per-frame choice does: the track hops between people; kept for
+    comparison).
     """
 
     def __init__(
@@ -308,10 +301,7 @@ class Tracker:
 
     def _forget_person(self) -> None:
         # Identity of the followed person: survives a track loss, not a reset().
-        # (18, 3) the followed detection's lifted keypoints when last seen (NaN: no depth)
-        self._reference: np.ndarray | None = None
-        self._since_reference = 0  # frames since _reference was updated
-        self._lengths: list[np.ndarray] = []  # body segment lengths while tracked
+        self._follower = PersonFollower(self.follow, self.person_rule, self.intrinsics)
         self._person = -1
 
     # -- set-up ------------------------------------------------------------------------------
@@ -358,43 +348,15 @@ class Tracker:
         """Index, in the last frame's list of people, of the detection followed (-1: none)."""
         return self._person
 
-    def _shape_signature(self) -> np.ndarray | None:
-        if len(self._lengths) < 5:
-            return None
-        return quiet_nanmedian(np.stack(self._lengths), axis=0)
-
-    def _select_person(self, cands: Candidates) -> int:
-        """The index of the followed person among this frame's detections, or -1."""
-        if len(cands) == 0:
-            return -1
-        if self.follow is None:  # per-frame choice: the most prominent detection
-            score = detection_score(cands.keypoints2d, cands.confidence)
-            return int(np.argmax(score)) if (score > 0).any() or len(cands) == 1 else -1
-        fs = self.follow
-        if self._reference is None:
-            if not cands.usable(fs.min_keypoints).any():
-                return -1
-            return choose_person(cands, self.person_rule, min_keypoints=fs.min_keypoints)
-        cost = match_costs(cands, self._reference, self.intrinsics, min_keypoints=fs.min_keypoints)
-        ok = cost < fs.gate_after(self._since_reference)
-        signature = self._shape_signature()
-        if self._state is None and signature is not None and ok.any():
-            # Re-acquisition: also the body's proportions (inconclusive = not a veto).
-            mismatch = shape_mismatch(segment_lengths(cands.points3d, cands.has_depth), signature)
-            ok &= ~(mismatch > fs.shape_tolerance)
-        return int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
-
     def _frame_for_person(
         self, depth_m: np.ndarray, kp_all: np.ndarray, conf_all: np.ndarray
     ) -> tuple[int, Candidates, np.ndarray, np.ndarray, np.ndarray]:
         """Choose the followed person; return (index, candidates, depth for the fit, its
         keypoints (18, 2), its confidence (18,)). Without the person: zero keypoints."""
         cands = lift_candidates(depth_m, kp_all, conf_all, self.intrinsics)
-        p = self._select_person(cands)
+        p = self._follower.select(cands, reacquiring=self._state is None)
         self._person = p
-        self._since_reference += 1
-        if p >= 0:
-            self._update_reference(cands, p)
+        self._follower.observe(cands, p)
         if p < 0:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
@@ -405,38 +367,6 @@ class Tracker:
             if mask.any():
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
-
-    def _update_reference(self, cands: Candidates, p: int) -> None:
-        """Move the reference to where the followed detection is seen this frame.
-
-        Where the person was *seen*, not where the fit put them: a poor fit (a bad first
-        initialisation, lost frames while the person walks on) must not move the gate off the
-        person. But a keypoint of a half-hidden person is often lifted onto whoever hides it;
-        such a keypoint must not drag the reference onto the other person. So only keypoints
-        within the gate of their reference position update it; the others (and those never
-        measured) move with the median displacement of the consistent ones.
-        """
-        fs = self.follow or FollowSettings()
-        lifted = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
-        if self._reference is None:
-            if np.isfinite(lifted).all(axis=1).sum() >= fs.min_keypoints:
-                self._reference, self._since_reference = lifted, 0
-            return
-        ref = self._reference
-        both = np.isfinite(lifted).all(axis=1) & np.isfinite(ref).all(axis=1)
-        dist = np.linalg.norm(np.where(both[:, None], lifted - ref, 0.0), axis=1)
-        consistent = both & (dist < fs.gate_after(self._since_reference))
-        if consistent.sum() < fs.min_keypoints:
-            return  # nothing trustworthy seen: the gate keeps widening
-        shift = np.median(lifted[consistent] - ref[consistent], axis=0)
-        new_only = np.isfinite(lifted).all(axis=1) & ~np.isfinite(ref).all(axis=1)
-        self._reference = np.where((consistent | new_only)[:, None], lifted, ref + shift)
-        self._since_reference = 0
-
-    def _remember(self, cands: Candidates, p: int) -> None:
-        """A tracked frame: the followed person's body proportions."""
-        if p >= 0 and len(self._lengths) < 200:
-            self._lengths.append(segment_lengths(cands.points3d[p], cands.has_depth[p]))
 
     @property
     def initialized(self) -> bool:
@@ -535,8 +465,7 @@ class Tracker:
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
         if p < 0:
-            fs = self.follow or FollowSettings()
-            if self._reference is None or not cands.usable(fs.min_keypoints).any():
+            if self._follower.reference is None or not self._follower.usable(cands):
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
             # Only other people in view: the followed person is lost this frame.
             if self._state is not None:
@@ -568,7 +497,7 @@ class Tracker:
                 self._drop_track()
             return est, LOST
         self._lost_run = 0
-        self._remember(cands, p)
+        self._follower.tracked(cands, p)
         return est, TRACKED
 
     def run(
@@ -674,28 +603,13 @@ class Tracker:
         :meth:`estimate_shape` (before any pose exists, people are followed by their lifted
         keypoints alone, with the same rules as :meth:`update`)."""
         ds, kps, confs = [], [], []
-        ref, since = None, 0
+        follower = PersonFollower(self.follow, self.person_rule, self.intrinsics)
         for i in range(n):
             d = check_depth(self.intrinsics, depths[i], self.depth_scale, f"frame {i}")
             kp_all, conf_all = check_people(keypoints2d[i], confidence[i], f"frame {i}")
             cands = lift_candidates(d, kp_all, conf_all, self.intrinsics)
-            fs = self.follow or FollowSettings()
-            p = -1
-            if not cands.usable(fs.min_keypoints).any():
-                pass
-            elif self.follow is None:
-                p = int(np.argmax(detection_score(cands.keypoints2d, cands.confidence)))
-            elif ref is None:
-                p = choose_person(cands, self.person_rule, min_keypoints=fs.min_keypoints)
-            else:
-                cost = match_costs(cands, ref, self.intrinsics, min_keypoints=fs.min_keypoints)
-                ok = cost < fs.gate_after(since)
-                p = int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
-            if p >= 0 and cands.has_depth[p].sum() >= 3:
-                ref = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
-                since = 0
-            else:
-                since += 1
+            p = follower.select(cands)
+            follower.observe(cands, p)
             kp, conf = cands.person(p) if p >= 0 else (np.zeros((18, 2)), np.zeros(18))
             ds.append(d)
             kps.append(kp)

@@ -246,7 +246,9 @@ def _person_summary(result, frame_ids, rule) -> dict:
 
 
 def _person_arg(value: str):
-    if value in ("auto", "largest", "closest"):
+    from .._associate import PERSON_RULES
+
+    if value in PERSON_RULES:
         return value
     try:
         index = int(value)

@@ -28,7 +28,6 @@ marks such points missing (confidence 0) and notes it.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +35,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .._associate import detection_score
 from ._atomic import atomic_write_text
 from ._errors import InputError, format_value
 from ._json import load_json, number
@@ -146,14 +146,6 @@ def _parse_person(path: Path, i: int, person: Any) -> tuple[str, np.ndarray, tup
     return _LAYOUTS[len(flat)], values, ids
 
 
-def _score(xyc: np.ndarray) -> float:
-    valid = xyc[:, 2] > 0
-    if valid.sum() < 2:
-        return 0.0
-    extent = xyc[valid, :2].max(axis=0) - xyc[valid, :2].min(axis=0)
-    return float(xyc[valid, 2].sum() * math.hypot(extent[0], extent[1]))
-
-
 def _check_inside(
     path: Path,
     i: int,
@@ -252,7 +244,8 @@ def read_openpose_json(
         )  # fmt: skip
     layout = people[0][0]
     coco = [values[_INDEX[layout]] for _l, values, _ids in people]
-    scores = tuple(_score(xyc) for xyc in coco)
+    xyc_all = np.stack(coco)
+    scores = tuple(float(v) for v in detection_score(xyc_all[..., :2], xyc_all[..., 2]))
     notes: list[str] = []
     ambiguous = False
     if person_id is not None:
