@@ -44,13 +44,20 @@ from ._fit import fit_hypotheses as fit_hypotheses
 from ._fit import fit_pose as fit_pose
 from ._init import estimate_shape as estimate_shape
 from ._init import initial_pose as initial_pose
+from ._metrics import LIMB_PAIRS as LIMB_PAIRS
 from ._metrics import Accuracy as Accuracy
+from ._metrics import acceleration_error as acceleration_error
 from ._metrics import accuracy as accuracy
 from ._metrics import followed_identity as followed_identity
+from ._metrics import gaussian_smoothed as gaussian_smoothed
 from ._metrics import identity_jumps as identity_jumps
+from ._metrics import jitter as jitter
 from ._metrics import joint_errors as joint_errors
+from ._metrics import motion_metrics as motion_metrics
 from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
+from ._metrics import swapped_limb_frames as swapped_limb_frames
+from ._metrics import swapped_limbs as swapped_limbs
 from ._observe import Landmarks as Landmarks
 from ._observe import lift_keypoints as lift_keypoints
 from ._refine import refine_pose as refine_pose
@@ -61,10 +68,13 @@ from ._render import render_depth_batch as render_depth_batch
 from ._residuals import ResidualSettings as ResidualSettings
 from ._score import delta as delta
 from ._score import delta_batch as delta_batch
+from ._smooth import SmoothSettings as SmoothSettings
+from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate
 from ._step import TrackState as TrackState
 from ._step import tracker_step as tracker_step
 from ._tracker import LOST as LOST
+from ._tracker import MODES as MODES
 from ._tracker import NO_OBSERVATION as NO_OBSERVATION
 from ._tracker import STATUS_NAMES as STATUS_NAMES
 from ._tracker import TRACKED as TRACKED
@@ -95,11 +105,14 @@ __all__ = [
     "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
+    # the motion model
+    "MODES", "SmoothSettings", "smooth_window",
     # which person is followed
     "FollowSettings", "choose_person", "detection_score", "lift_candidates", "match_costs",
     # metrics
-    "Accuracy", "accuracy", "followed_identity", "identity_jumps", "joint_errors",
-    "naive_lifting", "success_curve",
+    "LIMB_PAIRS", "Accuracy", "acceleration_error", "accuracy", "followed_identity",
+    "gaussian_smoothed", "identity_jumps", "jitter", "joint_errors", "motion_metrics",
+    "naive_lifting", "success_curve", "swapped_limb_frames", "swapped_limbs",
     # result files
     "SavedResults", "bvh_from_result", "save_results",
 ]  # fmt: skip

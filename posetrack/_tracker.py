@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 from functools import partial
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -34,6 +35,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
+from ._smooth import SmoothSettings, online_step_jit, smooth_sequence
 from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
@@ -41,6 +43,10 @@ _DTYPE = jnp.float32
 #: Frame status codes (also the strings written to files).
 TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
 STATUS_NAMES = ("tracked", "lost", "no_observation")
+
+#: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
+#: causal motion model with a fixed lag, or each frame on its own (the paper).
+MODES = ("offline", "online", "per-frame")
 
 #: ``progress(done, total, postfix)``: called after each frame by :meth:`Tracker.run`.
 ProgressCallback = Callable[[int, int, str], None]
@@ -70,6 +76,12 @@ def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks
         params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
     )
     return res, body.keypoints(shape, res.params)
+
+
+@jax.jit
+def keypoints_batch(shape, params):
+    """The keypoints of a stack of poses, (frame, 18, 3), jitted."""
+    return jax.vmap(lambda p: body.keypoints(shape, p))(params)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,6 +118,12 @@ class TrackResult:
     -1 where none was (nobody detected, or only other people: the frame is then 'lost')."""
     num_people: np.ndarray
     """(T,) int: people detected in each frame (with at least one keypoint)."""
+    per_frame_keypoints3d: np.ndarray | None = None
+    """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
+    model ran: then they are ``keypoints3d``)."""
+    mode: str = "per-frame"
+    """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
+    (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
 
     @property
     def others_ignored(self) -> int:
@@ -256,7 +274,25 @@ class Tracker:
         depth_scale: float = 1000.0,
         person: PersonRule = "auto",
         follow: FollowSettings | None = FollowSettings(),
+        mode: str = "offline",
+        lag: int = 0,
+        motion: SmoothSettings = SmoothSettings(),
+        fps: float = 30.0,
     ):
+        if mode not in MODES:
+            raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
+        if isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0:
+            raise ValueError(f"Tracker: lag must be an int >= 0 (frames), got {lag!r}")
+        if lag >= motion.online_window:
+            raise ValueError(
+                f"Tracker: lag {lag} must be smaller than motion.online_window "
+                f"({motion.online_window} frames)"
+            )
+        if not isinstance(motion, SmoothSettings):
+            raise TypeError(f"Tracker: motion must be posetrack.SmoothSettings, got {type(motion)}")
+        if not (np.isfinite(fps) and fps > 0):
+            raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
+        self.mode, self.lag, self.motion, self.fps = mode, int(lag), motion, float(fps)
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
                 f"Tracker: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
@@ -297,7 +333,76 @@ class Tracker:
         self._init_timed = False
         self._step_calls = 0
         self._step_times: list[float] = []
+        self._motion_times: list[float] = []
+        self.smooth_s = 0.0
         self._forget_person()
+        self._reset_motion()
+
+    def _reset_motion(self) -> None:
+        """Empty the online motion model's window (a new track segment starts)."""
+        W = self.motion.online_window
+        self._buf_params = np.tile(np.asarray(body.facing_camera_params(2.5), np.float32), (W, 1))
+        self._buf_lm = Landmarks(
+            keypoints2d=np.zeros((W, 18, 2), np.float32),
+            confidence=np.zeros((W, 18), np.float32),
+            points3d=np.zeros((W, 18, 3), np.float32),
+            detected=np.zeros((W, 18), bool),
+            has_depth=np.zeros((W, 18), bool),
+        )
+        self._buf_conf = np.zeros((W, 18), np.float32)
+        self._buf_valid = np.zeros(W, bool)
+        self._buf_frame = np.full(W, -1, np.int64)
+        self._frames_seen = 0
+        self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
+        """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
+        frames before the newest, smoothed (``None`` until there is one)."""
+        self._last_window: tuple | None = None
+
+    def _push_motion(self, params, lm: Landmarks | None, conf, valid: bool) -> None:
+        """Append the newest frame to the online window (dropping the oldest)."""
+        self._buf_params = np.roll(self._buf_params, -1, axis=0)
+        self._buf_params[-1] = params
+        if lm is None:
+            new = jax.tree.map(lambda x: np.zeros_like(x[-1]), self._buf_lm)
+        else:
+            new = jax.tree.map(np.asarray, lm)
+        self._buf_lm = jax.tree.map(
+            lambda b, x: np.concatenate([b[1:], np.asarray(x, b.dtype)[None]]), self._buf_lm, new
+        )
+        self._buf_conf = np.roll(self._buf_conf, -1, axis=0)
+        self._buf_conf[-1] = conf
+        self._buf_valid = np.roll(self._buf_valid, -1)
+        self._buf_valid[-1] = valid
+        self._buf_frame = np.roll(self._buf_frame, -1)
+        self._buf_frame[-1] = self._frames_seen - 1
+
+    def _online(self, est: FrameEstimate | None, conf: np.ndarray, update_state: bool):
+        """The online motion model after a frame: smooth the window, predict the next frame,
+        publish the lagged output (:attr:`lagged`). Returns the smoothed pose of the newest
+        frame (``None`` if it has none)."""
+        if self._state is None:
+            self._push_motion(self._buf_params[-1], None, np.zeros(18), False)
+            self.lagged = None
+            return None
+        if est is None:  # held: the pose continues, nothing observed
+            self._push_motion(np.asarray(self._state.best), None, np.zeros(18), True)
+        else:
+            self._push_motion(np.asarray(est.params), est.landmarks, conf, True)
+        t0 = time.perf_counter()
+        smoothed, kps, new_state = online_step_jit(
+            self.motion, self.shape, self.intrinsics, jnp.asarray(self._buf_params),
+            jax.tree.map(jnp.asarray, self._buf_lm), jnp.asarray(self._buf_valid),
+            jnp.asarray(self.fps, _DTYPE), jnp.asarray(self._buf_conf), self._state,
+        )  # fmt: skip
+        smoothed, kps = np.asarray(smoothed), np.asarray(kps)
+        self._motion_times.append(time.perf_counter() - t0)
+        if update_state and self.motion.feedback:
+            self._state = new_state
+        W = self.motion.online_window
+        i = W - 1 - self.lag
+        self.lagged = (int(self._buf_frame[i]), smoothed[i], kps[i]) if self._buf_valid[i] else None
+        self._last_window = (self._buf_frame.copy(), self._buf_valid.copy(), smoothed, kps)
+        return smoothed[-1], kps[-1]
 
     def _forget_person(self) -> None:
         # Identity of the followed person: survives a track loss, not a reset().
@@ -342,6 +447,7 @@ class Tracker:
         """Forget the hypotheses after a loss; keep who is followed."""
         self._state = None
         self._lost_run = 0
+        self._buf_valid[:] = False
 
     @property
     def person(self) -> int:
@@ -456,11 +562,32 @@ class Tracker:
     def update(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """Process one frame. Returns (estimate or None, status code).
 
+        In ``mode="online"`` the motion model runs after the step: with ``lag=0`` the
+        estimate's ``params`` and ``keypoints3d`` are the smoothed pose of this frame; with
+        ``lag=L`` they are this frame's per-frame pose and :attr:`lagged` holds the smoothed
+        pose of the frame L frames back. The next frame starts from the predicted pose.
+
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
         (any order); ``confidence``: (18,) or (P, 18), 0 = missing. :attr:`person` says which
         detection was followed.
         """
+        self._frames_seen += 1
+        est, st = self._update_frame(depth, keypoints2d, confidence)
+        if self.mode != "online":
+            return est, st
+        observed = est is not None and st != NO_OBSERVATION
+        conf = keypoint_confidence(est) * (0.5 if st == LOST else 1.0) if observed else np.zeros(18)
+        newest = self._online(est if observed else None, conf, update_state=observed)
+        if newest is not None and observed and self.lag == 0:
+            p, k = newest
+            est = eqx.tree_at(
+                lambda e: (e.params, e.keypoints3d), est, (jnp.asarray(p), jnp.asarray(k))
+            )
+        return est, st
+
+    def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
+        """:meth:`update` without the online motion model."""
         depth_m = check_depth(self.intrinsics, depth, self.depth_scale, "update")
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
@@ -543,8 +670,14 @@ class Tracker:
         det = np.zeros((T, 18), bool)
         person = np.full(T, -1, np.int64)
         num_people = np.zeros(T, np.int64)
+        kp2 = np.zeros((T, 18, 2), np.float32)
+        lm_conf = np.zeros((T, 18), np.float32)
+        self._reset_motion()
         for t in range(T):
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
+            if self.mode == "online" and self.lagged is not None and self.lag > 0:
+                i, p_lag, k_lag = self.lagged
+                params[i], kp3[i] = p_lag, k_lag
             status[t] = st
             person[t] = self._person
             num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
@@ -558,10 +691,12 @@ class Tracker:
                     kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
                 continue
             lm = est.landmarks
-            lm3[t], has_d[t], det[t] = (
+            lm3[t], has_d[t], det[t], kp2[t], lm_conf[t] = (
                 np.asarray(lm.points3d),
                 np.asarray(lm.has_depth),
                 np.asarray(lm.detected),
+                np.asarray(lm.keypoints2d),
+                np.asarray(lm.confidence),
             )
             if st == NO_OBSERVATION:
                 prev = self._state.best if self._state is not None else None
@@ -573,6 +708,32 @@ class Tracker:
             kp3[t] = np.asarray(est.keypoints3d)
             delta[t] = float(est.delta)
             conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
+        per_frame = None
+        if self.mode == "online" and self.lag > 0 and self._last_window is not None:
+            # The newest frames' smoothed poses were never lagged out: take the last window's.
+            frames, ok, sm, sk = self._last_window
+            for j in np.flatnonzero(ok & (frames > T - 1 - self.lag)):
+                params[frames[j]], kp3[frames[j]] = sm[j], sk[j]
+        if self.mode == "offline":
+            valid = np.isfinite(kp3).all(axis=(1, 2))
+            if valid.any():
+                per_frame = kp3.copy()
+                lms = Landmarks(
+                    keypoints2d=kp2, confidence=lm_conf, points3d=lm3.astype(np.float32),
+                    detected=det, has_depth=has_d,
+                )  # fmt: skip
+                t0 = time.perf_counter()
+                smoothed = smooth_sequence(
+                    self.motion, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
+                    fps=self.fps, pose_confidence=conf_out,
+                )  # fmt: skip
+                params = np.where(valid[:, None], smoothed, params)
+                kp3 = np.where(
+                    valid[:, None, None],
+                    np.asarray(keypoints_batch(self.shape, jnp.asarray(params))),
+                    kp3,
+                )
+                self.smooth_s = time.perf_counter() - t0
         # Never NaN parameters: frames without an estimate take the nearest estimated pose.
         have = np.flatnonzero(np.isfinite(params).all(axis=1))
         if len(have):
@@ -596,6 +757,8 @@ class Tracker:
             ms_per_frame=float(np.median(times) * 1000) if times else float("nan"),
             person_index=person,
             num_people=num_people,
+            per_frame_keypoints3d=per_frame,
+            mode=self.mode,
         )
 
     def _shape_frames(self, depths, keypoints2d, confidence, n: int) -> tuple[list, list, list]:
@@ -629,12 +792,19 @@ def track(
     progress: ProgressCallback | None = None,
     person: PersonRule = "auto",
     follow: FollowSettings | None = FollowSettings(),
+    mode: str = "offline",
+    lag: int = 0,
+    motion: SmoothSettings = SmoothSettings(),
+    fps: float = 30.0,
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
-    ``(18, 2)`` or every detected person ``(P, 18, 2)``."""
-    return Tracker(intrinsics, config, shape=shape, seed=seed, person=person, follow=follow).run(
-        depths, keypoints2d, confidence, progress=progress
-    )
+    ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
+    motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
+    "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior."""
+    return Tracker(
+        intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
+        lag=lag, motion=motion, fps=fps,
+    ).run(depths, keypoints2d, confidence, progress=progress)  # fmt: skip
 
 
 def lift_sequence(

@@ -150,7 +150,13 @@ def _track(args) -> int:
         f"{'is' if config.n == 1 else 'es'} (the first frames include JAX compilation)",
         file=sys.stderr,
     )
-    tracker = Tracker(rec.intrinsics, config, seed=args.seed, person=args.person)
+    fps = args.fps if args.fps is not None else rec.fps
+    fps = 30.0 if fps is None else fps
+    mode = "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
+    tracker = Tracker(
+        rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
+        lag=args.online or 0, fps=fps,
+    )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
     t_tracked = time.perf_counter()
@@ -161,7 +167,6 @@ def _track(args) -> int:
         kp2d = kp2d[np.arange(n), pick]
         conf = np.where(followed[:, None], conf[np.arange(n), pick], np.float32(0))
 
-    fps = args.fps if args.fps is not None else rec.fps
     info = {
         "inputs": {
             "depth": os.path.abspath(args.depth),
@@ -175,6 +180,8 @@ def _track(args) -> int:
             "allow_missing": args.allow_missing,
             "drop_outside": args.drop_outside,
             "seed": args.seed,
+            "mode": mode,
+            "lag": args.online or 0,
         },
         "notes": notes,
         "person": person,
@@ -390,7 +397,19 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     t.add_argument(
         "--fps", type=float,
-        help="frame rate for the BVH and video (default: the video's, else 30)",
+        help="frame rate for the motion model, the BVH and the video (default: the video's, "
+        "else 30)",
+    )  # fmt: skip
+    motion = t.add_mutually_exclusive_group()
+    motion.add_argument(
+        "--online", type=int, nargs="?", const=0, default=None, metavar="LAG",
+        help="causal motion model, as for a live camera: each pose uses only the frames up to "
+        "LAG frames after it (default LAG 0; experimental, see the README). Without this "
+        "flag the motion model smooths over the whole recording (offline)",
+    )  # fmt: skip
+    motion.add_argument(
+        "--per-frame", action="store_true",
+        help="no motion model: every frame on its own (the paper's tracker)",
     )  # fmt: skip
     t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")

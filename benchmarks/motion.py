@@ -1,0 +1,173 @@
+#!/usr/bin/env python
+"""Motion benchmark: does the tracker's output move like the person? (issue 12)
+
+For each clip (a seed of ``posetrack.synth.generate``, motions cycling through the built-in
+ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
+
+* naive lifting (each keypoint at its own depth, held where missing);
+* LVM and MHT_h with no motion model (``mode="per-frame"``, the paper's trackers);
+* MHT_h per-frame + a Gaussian filter over time (sigma = 2 frames): the post-hoc floor;
+* MHT_h ``mode="offline"`` (the default of ``posetrack track``): the motion model over the
+  whole recording;
+* MHT_h ``mode="online"`` with lag 0 and 4 (causal; experimental).
+
+Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
+swapped limb pair, the worst clip's D as a multiple of LVM's on the same clip, and on the
+``idle`` clips the jitter (mm/frame) against the truth's own. Cost: the offline smoother's and
+the online model's time per frame as a ratio to the per-frame step, measured in the same run.
+
+Seeds come from ``REPORT_SEEDS`` (never tuned on; the smoother's defaults were chosen on
+seeds 100-103 of ``TUNING_SEEDS``).
+
+    python benchmarks/motion.py --clips 12          # ~15 min on 2 cores
+    python benchmarks/motion.py --quick             # 3 clips
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from seeds import REPORT_SEEDS
+
+import posetrack as pt
+from posetrack.app import machine_summary
+
+MOTIONS = ("walk", "box", "reach", "wave", "squat", "turn", "walk_across", "idle")
+ROWS = (
+    "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
+    "MHT_h online L=0", "MHT_h online L=4",
+)  # fmt: skip
+
+
+def run_clip(seed: int, motion: str, occlusion: int, frames: int) -> dict:
+    seq = pt.synth.generate(
+        seed, motion=motion, n_frames=frames, fps=30.0, occlusion_level=occlusion,
+        width=320, height=240, with_rgb=False,
+    )  # fmt: skip
+    args = (seq.depth, seq.keypoints2d, seq.confidence)
+    out: dict[str, np.ndarray] = {}
+    pts, flags = pt.lift_sequence(*args, seq.intrinsics)
+    out["naive lifting"] = pt.naive_lifting(pts, flags)
+    lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
+    out["LVM"] = lvm.keypoints3d
+    tr = pt.Tracker(seq.intrinsics, mode="offline")
+    off = tr.run(*args)
+    out["MHT_h per-frame"] = off.per_frame_keypoints3d
+    out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
+    out["MHT_h offline"] = off.keypoints3d
+    cost = {"step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames}
+    for lag in (0, 4):
+        on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
+        out[f"MHT_h online L={lag}"] = on_tr.run(*args).keypoints3d
+        if lag == 0:
+            cost["online_ms"] = float(np.median(on_tr._motion_times[1:]) * 1000)
+            cost["online_step_ms"] = float(np.median(on_tr.step_times) * 1000)
+    return {"truth": seq.joints3d, "est": out, "cost": cost}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--clips", type=int, default=12)
+    ap.add_argument("--start", type=int, default=0, help="index into REPORT_SEEDS")
+    ap.add_argument("--frames", type=int, default=120)
+    ap.add_argument("--quick", action="store_true", help="3 clips")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
+    a = ap.parse_args()
+    clips = 3 if a.quick else a.clips
+    per_clip = []
+    t0 = time.perf_counter()
+    for i in range(clips):
+        seed = REPORT_SEEDS[a.start + i]
+        motion = MOTIONS[(a.start + i) % len(MOTIONS)]
+        for occ in (0, 2):
+            r = run_clip(seed, motion, occ, a.frames)
+            gt = r["truth"]
+            rows = {}
+            for name in ROWS:
+                est = r["est"][name]
+                acc = pt.accuracy(est, gt)
+                rows[name] = {
+                    "D_mm": acc.mean_mm, "coverage": acc.coverage, "C_100mm": acc.success[100],
+                    **pt.motion_metrics(est, gt),
+                    "jitter_mm": pt.jitter(est) if motion == "idle" else None,
+                }  # fmt: skip
+            per_clip.append({
+                "seed": seed, "motion": motion, "occlusion": occ, "rows": rows,
+                "truth_jitter_mm": pt.jitter(gt) if motion == "idle" else None,
+                "cost": r["cost"],
+            })  # fmt: skip
+            print(
+                f"[{time.perf_counter() - t0:6.0f}s] seed {seed} {motion:11s} occl {occ}: "
+                + "  ".join(
+                    f"{n.replace('MHT_h ', '')} {rows[n]['D_mm']:.0f}/{rows[n]['accel_mm']:.0f}"
+                    for n in ROWS
+                ),
+                file=sys.stderr,
+                flush=True,
+            )
+    summary = {}
+    for cond, occs in (("clean", (0,)), ("occluded", (2,))):
+        clips_c = [c for c in per_clip if c["occlusion"] in occs]
+        summary[cond] = {}
+        for name in ROWS:
+            vals = [c["rows"][name] for c in clips_c]
+            ratio = [c["rows"][name]["D_mm"] / c["rows"]["LVM"]["D_mm"] for c in clips_c]
+            jit = [v["jitter_mm"] for v in vals if v["jitter_mm"] is not None]
+            summary[cond][name] = {
+                "D_mm": float(np.mean([v["D_mm"] for v in vals])),
+                "coverage": float(np.mean([v["coverage"] for v in vals])),
+                "C_100mm": float(np.mean([v["C_100mm"] for v in vals])),
+                "accel_mm": float(np.mean([v["accel_mm"] for v in vals])),
+                "swap_frames": int(np.sum([v["swap_frames"] for v in vals])),
+                "worst_vs_LVM": float(np.max(ratio)),
+                "clips_worse_than_LVM": int(np.sum(np.asarray(ratio) > 1.0)),
+                "jitter_mm": float(np.mean(jit)) if jit else None,
+            }
+    costs = [c["cost"] for c in per_clip]
+    step = float(np.median([c["step_ms"] for c in costs]))
+    cost = {
+        "step_ms": step,
+        "offline_ms_per_frame": float(np.median([c["offline_ms"] for c in costs])),
+        "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
+        "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
+    }
+    cost["offline_total_over_step"] = (step + cost["offline_ms_per_frame"]) / step
+    cost["online_total_over_step"] = (cost["online_step_ms"] + cost["online_ms_per_frame"]) / step
+    truth_jit = [c["truth_jitter_mm"] for c in per_clip if c["truth_jitter_mm"] is not None]
+    for cond in summary:
+        n_c = sum(c["occlusion"] == (0 if cond == "clean" else 2) for c in per_clip)
+        print(f"\n{cond} ({n_c} clips)")
+        print(f"{'':20s} {'D mm':>6s} {'cover':>6s} {'C100':>6s} {'accel':>6s} {'swaps':>6s} "
+              f"{'worst/LVM':>9s} {'jitter':>6s}")  # fmt: skip
+        for name, v in summary[cond].items():
+            jit = "" if v["jitter_mm"] is None else f"{v['jitter_mm']:6.1f}"
+            print(
+                f"{name:20s} {v['D_mm']:6.1f} {v['coverage']:6.3f} {v['C_100mm']:6.3f} "
+                f"{v['accel_mm']:6.1f} {v['swap_frames']:6d} {v['worst_vs_LVM']:9.2f} {jit:>6s}"
+            )
+    if truth_jit:
+        print(f"\ntruth's own jitter on the idle clips: {np.mean(truth_jit):.1f} mm/frame")
+    print(
+        f"\ncost per frame: step {step:.1f} ms; offline smoother "
+        f"+{cost['offline_ms_per_frame']:.1f} ms ({cost['offline_total_over_step']:.2f}x the "
+        f"step); online model +{cost['online_ms_per_frame']:.1f} ms "
+        f"({cost['online_total_over_step']:.2f}x)"
+    )
+    result = {
+        "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
+        "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
+        "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
+    }  # fmt: skip
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps(result, indent=1, default=float))
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,453 @@
+"""The motion model: poses of many frames fitted jointly under a smooth-motion prior.
+
+The per-frame tracker (``_step.py``) estimates each frame from the previous pose and this
+frame's landmarks; its output shakes (independent errors frame to frame) and cannot use what
+the following frames say. The smoother takes a window of W frames and minimises, over the W
+poses at once (not in the paper),
+
+    E(p_1..p_W) = sum_t S_t(p_t) + lambda * sum_t ||X_{t+1} - 2 X_t + X_{t-1}||^2
+
+where ``S_t`` is Eq. (1) of the paper on frame t's landmarks that agree with the tracker's pose
+(the consensus set, as the per-frame refit uses, so the outliers the hypotheses rejected stay
+out), with the fit's regularisers, plus a pull toward the tracker's own keypoints weighted by
+their confidence (they carry what the depth rendering and the hypotheses' vote found; without
+it the smoothed poses were measured worse than the per-frame ones), and ``X_t`` are the 18
+model keypoints of pose ``p_t``: a prior on joint accelerations, in metres, the quantity the
+acceleration error measures. Where a frame has few landmarks (occlusion) the prior carries its pose from the frames around it.
+
+**Solver.** Levenberg-Marquardt on the W x 43 parameters. Frame t's residuals depend on
+``p_t`` only and an acceleration term on three consecutive poses, so the normal equations are
+block-banded (43 x 43 blocks, two blocks either side of the diagonal). Pairing frames makes
+them block-tridiagonal (86 x 86 blocks), which a block Thomas elimination (``lax.scan``) solves
+in O(W) time: a window of 128 frames costs about as much as 128 single-frame LM steps, where
+optimistix' dense LM would form a 5,504-column Jacobian. The per-frame Jacobians are vmapped
+``jax.jacfwd`` of the same residual function the tracker's fits use.
+
+One jitted call per window (:func:`smooth_window`); ``posetrack.track`` runs it over the
+recording in overlapping windows (offline) and ``Tracker`` with a fixed lag (online).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from . import _body as body
+from ._camera import Intrinsics
+from ._fit import fit_problem, fit_residuals
+from ._observe import Landmarks
+from ._residuals import ResidualSettings, _sqrt_reweight
+from ._select import landmark_distances
+from ._step import TrackState
+
+#: Coefficients of the second difference X_{s+1} - 2 X_s + X_{s-1}, for frames s-1, s, s+1.
+_C = (1.0, -2.0, 1.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class SmoothSettings:
+    """Settings of the motion model (hashable: static under jit).
+
+    The prior's weight is given as physical spreads so it does not depend on the frame rate:
+    ``lambda = (landmark_std / (accel_std / fps^2))^2`` per keypoint coordinate.
+    """
+
+    accel_std: float = 1.0
+    """Spread of a joint's acceleration the prior expects, m/s^2 (the smaller, the smoother).
+    """
+    landmark_std: float = 0.03
+    """Spread of a landmark's error in metres that ``accel_std`` is weighed against."""
+    iterations: int = 10
+    """Levenberg-Marquardt iterations per window."""
+    consensus_distance: float = 0.12
+    """A landmark enters frame t's data term if it lies within this of the tracker's pose at
+    t, metres (2D landmarks: in metres at the keypoint's depth)."""
+    residuals: ResidualSettings = ResidualSettings(loss="l1")
+    """The data term: Eq. (1)'s sum of norms by default (robust to what the consensus let
+    through)."""
+    landmark_weight: float = 1.0
+    """Weight of the landmarks (Eq. (1)) in each frame's data term."""
+    pose_weight: float = 1.0
+    """Weight of the tracker's own keypoints in each frame's data term (they carry what the
+    depth rendering and the hypotheses' vote found, which the landmarks alone do not)."""
+    online_window: int = 12
+    """Frames the online mode smooths over at every frame (static): the newest frame and the
+    ones before it."""
+    online_iterations: int = 4
+    """Levenberg-Marquardt iterations of the online window (it starts from the previous
+    frame's smoothing, so fewer than offline)."""
+    feedback: bool = False
+    """Online: start the next frame's hypotheses from the predicted pose (and compare the
+    temporal weights against it). Off by default: on the tuning seeds it made the occluded
+    clips worse (box, occlusion 2, seed 102: D 85 mm against 59 without), as a wrong smoothed
+    pose drags every hypothesis with it; see the README."""
+    prediction: float = 1.0
+    """Online with ``feedback``: the next frame's hypotheses start from the newest smoothed
+    pose plus this many times its velocity (0: from the smoothed pose itself)."""
+    window: int = 96
+    """Frames per window (offline); static: one compiled program per window size."""
+    overlap: int = 16
+    """Frames each window shares with the next (offline); the first and last ``overlap // 2``
+    of a window are taken from its neighbours."""
+
+    def __post_init__(self):
+        if not (self.accel_std > 0 and self.landmark_std > 0):
+            raise ValueError(
+                f"SmoothSettings: accel_std and landmark_std must be positive, got "
+                f"{self.accel_std} and {self.landmark_std}"
+            )
+        if self.iterations < 1:
+            raise ValueError(f"SmoothSettings.iterations must be >= 1, got {self.iterations}")
+        if self.online_window < 4 or self.online_window % 2:
+            raise ValueError(
+                f"SmoothSettings.online_window must be even and >= 4, got {self.online_window}"
+            )
+        if self.window < 4 or self.window % 2:
+            raise ValueError(f"SmoothSettings.window must be even and >= 4, got {self.window}")
+        if not 0 <= self.overlap <= self.window // 2:
+            raise ValueError(
+                f"SmoothSettings.overlap must be in [0, window / 2], got {self.overlap}"
+            )
+
+    def weight(self, fps: float | Array) -> Array:
+        """lambda for a frame rate (Hz)."""
+        per_frame = self.accel_std / (jnp.asarray(fps, jnp.float32) ** 2)
+        return (self.landmark_std / per_frame) ** 2
+
+
+def consensus_masks(
+    shape: body.BodyShape,
+    intrinsics: Intrinsics,
+    params: Float[Array, "frame 43"],
+    landmarks: Landmarks,
+    distance: float,
+) -> tuple[Bool[Array, "frame kpt"], Bool[Array, "frame kpt"]]:
+    """Per frame, the landmarks within ``distance`` of the pose's keypoints (3D, and 2D where
+    the keypoint has no depth), as in the tracker's consensus refit."""
+
+    def one(p, lm):
+        d3, d2 = landmark_distances(lm, body.keypoints(shape, p), intrinsics)
+        use3d = lm.has_depth & (d3 < distance)
+        return use3d, lm.detected & ~lm.has_depth & (d2 < distance)
+
+    return jax.vmap(one)(params, landmarks)
+
+
+def _acceleration_weights(valid: Bool[Array, " frame"]):
+    """Which acceleration terms exist (all three frames valid) and the banded weights."""
+    v = valid.astype(jnp.float32)
+    W = v.shape[0]
+    term = jnp.zeros(W).at[1:-1].set(v[:-2] * v[1:-1] * v[2:])  # term s couples s-1, s, s+1
+    prev = jnp.concatenate([jnp.zeros(1), term[:-1]])  # term s = t - 1 (t is its s+1)
+    nxt = jnp.concatenate([term[1:], jnp.zeros(1)])  # term s = t + 1 (t is its s-1)
+    w0 = prev + 4.0 * term + nxt  # sum of c^2 over the terms that contain frame t
+    w1 = -2.0 * term - 2.0 * nxt  # (t, t+1): terms s = t and s = t + 1
+    w2 = nxt  # (t, t+2): term s = t + 1
+    return term, w0, w1, w2
+
+
+def _second_difference(X: Float[Array, "frame n"], term: Float[Array, " frame"]):
+    """a_s = X_{s+1} - 2 X_s + X_{s-1} where term s exists, else 0; (frame, n)."""
+    a = jnp.zeros_like(X).at[1:-1].set(X[2:] - 2.0 * X[1:-1] + X[:-2])
+    return a * term[:, None]
+
+
+def _block_tridiagonal_solve(D, U, b):
+    """Solve a symmetric block-tridiagonal system (block Thomas elimination).
+
+    Args:
+        D: (K, n, n) diagonal blocks; U: (K, n, n) super-diagonal blocks (U[k] couples block k
+            with k + 1; U[K-1] unused); b: (K, n) right-hand side.
+
+    Returns:
+        (K, n) solution. The system must be positive definite (the LM damping makes it so).
+    """
+
+    def forward(carry, xs):
+        Dp_prev, bp_prev, U_prev = carry
+        Dk, bk, Uk = xs
+        X = jnp.linalg.solve(Dp_prev, U_prev)  # Dp_{k-1}^{-1} U_{k-1}
+        Dp = Dk - U_prev.T @ X
+        bp = bk - X.T @ bp_prev
+        return (Dp, bp, Uk), (Dp, bp)
+
+    n = D.shape[-1]
+    zero = jnp.zeros((n, n), D.dtype)
+    init = (jnp.eye(n, dtype=D.dtype), jnp.zeros(n, D.dtype), zero)
+    _, (Dp, bp) = jax.lax.scan(forward, init, (D, b, U))
+
+    def backward(x_next, xs):
+        Dk, bk, Uk = xs
+        x = jnp.linalg.solve(Dk, bk - Uk @ x_next)
+        return x, x
+
+    U_shift = U.at[-1].set(zero)
+    _, x = jax.lax.scan(backward, jnp.zeros(n, D.dtype), (Dp, bp, U_shift), reverse=True)
+    return x
+
+
+def smooth_window(
+    settings: SmoothSettings,
+    shape: body.BodyShape,
+    intrinsics: Intrinsics,
+    params: Float[Array, "frame 43"],
+    landmarks: Landmarks,
+    use3d: Bool[Array, "frame kpt"],
+    use2d: Bool[Array, "frame kpt"],
+    valid: Bool[Array, " frame"],
+    fps: Float[Array, ""],
+    pose_confidence: Float[Array, "frame kpt"],
+    iterations: int | None = None,
+) -> Float[Array, "frame 43"]:
+    """Fit the poses of a window of frames jointly (see the module docstring). Jittable.
+
+    Args:
+        settings: the prior and the solver (static).
+        shape, intrinsics: as for :func:`~posetrack.fit_pose`.
+        params: (frame, 43) the per-frame estimates, the start and the regularisers' anchor;
+            quaternions wxyz.
+        landmarks: the frames' lifted observations (a leading ``frame`` axis).
+        use3d, use2d: (frame, kpt) the landmarks each frame's data term uses.
+        valid: (frame,) frames that have a pose; an invalid frame (before the first
+            estimate, padding) takes part in no acceleration term and is returned unchanged.
+        fps: frame rate, Hz (scales the prior, see :class:`SmoothSettings`).
+        pose_confidence: (frame, kpt) weight in [0, 1] of each of the tracker's own keypoints
+            in the data term (the tracker's per-keypoint confidence: a keypoint inferred
+            rather than observed pulls less, and the prior carries it).
+        iterations: LM iterations (static; default ``settings.iterations``).
+
+    Returns:
+        (frame, 43) smoothed poses, unit quaternions with w >= 0.
+    """
+    W = params.shape[0]
+    if W % 2:
+        raise ValueError(f"smooth_window: the window must have an even number of frames, got {W}")
+    lam = settings.weight(fps)
+    term, w0, w1, w2 = _acceleration_weights(valid)
+
+    def problem(p, lm, u3, u2):
+        start, args = fit_problem(
+            p, shape, lm, intrinsics, use3d=u3, use2d=u2, residuals=settings.residuals
+        )
+        _, _, _, u3, u2, mpp, _, _ = args
+        return start, (lm, u3, u2, mpp)
+
+    start, frame_args = jax.vmap(problem)(params, landmarks, use3d, use2d)
+    lms, u3, u2, mpp = frame_args
+    # An invalid frame has no data; its regularisers alone keep it where it is.
+    frame_args = (lms, u3 & valid[:, None], u2 & valid[:, None], mpp, start)
+
+    targets = jax.vmap(lambda p: body.keypoints(shape, p))(start)
+    frame_args = (*frame_args, targets, jnp.asarray(pose_confidence) * valid[:, None])
+
+    def data_res(p, a):
+        lm, u3, u2, mpp, anchor, target, conf = a
+        r = fit_residuals(p, (shape, lm, intrinsics, u3, u2, mpp, anchor, settings.residuals))
+        e = body.keypoints(shape, p) - target
+        if settings.residuals.loss == "l1":
+            e = _sqrt_reweight(e, settings.residuals.eps)
+        e = e * jnp.sqrt(settings.pose_weight * conf)[:, None]
+        n_lm = 18 * 5
+        return jnp.concatenate(
+            [r[:n_lm] * jnp.sqrt(settings.landmark_weight), r[n_lm:], e.reshape(-1)]
+        )
+
+    def kps(p):
+        return body.keypoints(shape, p).reshape(-1)
+
+    def cost(P):
+        r = jax.vmap(data_res)(P, frame_args)
+        a = _second_difference(jax.vmap(kps)(P), term)
+        return jnp.sum(r * r) + lam * jnp.sum(a * a)
+
+    def iterate(_, carry):
+        P, mu, c = carry
+        r = jax.vmap(data_res)(P, frame_args)  # (frame, res)
+        A = jax.vmap(jax.jacfwd(data_res))(P, frame_args)  # (frame, res, 43)
+        X = jax.vmap(kps)(P)  # (frame, 54)
+        B = jax.vmap(jax.jacfwd(kps))(P)  # (frame, 54, 43)
+        a = _second_difference(X, term)
+        # Gradient: frame t sits in term t-1 (coefficient 1), t (-2) and t+1 (1).
+        a_prev = jnp.concatenate([jnp.zeros_like(a[:1]), a[:-1]])
+        a_next = jnp.concatenate([a[1:], jnp.zeros_like(a[:1])])
+        Ba = jnp.einsum("tki,tk->ti", B, a_prev - 2.0 * a + a_next)
+        g = jnp.einsum("tri,tr->ti", A, r) + lam * Ba
+        BtB = jnp.einsum("tki,tkj->tij", B, B)
+        B_next = jnp.concatenate([B[1:], jnp.zeros_like(B[:1])])
+        B_next2 = jnp.concatenate([B[2:], jnp.zeros_like(B[:2])])
+        AtA = jnp.einsum("tri,trj->tij", A, A)
+        D = AtA + lam * w0[:, None, None] * BtB
+        eye = jnp.eye(43, dtype=P.dtype)
+        D = D + mu * (
+            eye[None] * jnp.diagonal(D, axis1=-2, axis2=-1)[:, None, :] + 1e-6 * eye[None]
+        )
+        U1 = lam * w1[:, None, None] * jnp.einsum("tki,tkj->tij", B, B_next)
+        U2 = lam * w2[:, None, None] * jnp.einsum("tki,tkj->tij", B, B_next2)
+        # Pair frames (2k, 2k+1): bandwidth two in frames is one in pairs.
+        K = W // 2
+        SD = jnp.concatenate(
+            [
+                jnp.concatenate([D[0::2], U1[0::2]], axis=2),
+                jnp.concatenate([jnp.swapaxes(U1[0::2], 1, 2), D[1::2]], axis=2),
+            ],
+            axis=1,
+        )
+        zero = jnp.zeros((K, 43, 43), P.dtype)
+        SU = jnp.concatenate(
+            [
+                jnp.concatenate([U2[0::2], zero], axis=2),
+                jnp.concatenate([U1[1::2], U2[1::2]], axis=2),
+            ],
+            axis=1,
+        )
+        b = -g.reshape(K, 86)
+        step = _block_tridiagonal_solve(SD, SU, b).reshape(W, 43)
+        P_new = P + step
+        c_new = cost(P_new)
+        better = jnp.isfinite(c_new) & (c_new < c)
+        return (
+            jnp.where(better, P_new, P),
+            jnp.where(better, mu * 0.3, mu * 4.0),
+            jnp.where(better, c_new, c),
+        )
+
+    P0 = start
+    carry = (P0, jnp.asarray(1e-3, P0.dtype), cost(P0))
+    P, _, _ = jax.lax.fori_loop(0, iterations or settings.iterations, iterate, carry)
+    P = body.normalize_params(P)
+    return jnp.where(valid[:, None], P, params)
+
+
+smooth_window_jit = eqx.filter_jit(smooth_window)
+
+
+def smooth_sequence(
+    settings: SmoothSettings,
+    shape: body.BodyShape,
+    intrinsics: Intrinsics,
+    params: np.ndarray,
+    landmarks: Landmarks,
+    valid: np.ndarray,
+    *,
+    fps: float,
+    pose_confidence: np.ndarray | None = None,
+) -> np.ndarray:
+    """The offline smoother over a whole recording: :func:`smooth_window` on overlapping
+    windows of ``settings.window`` frames (one jitted call each; one compiled program for
+    any length).
+
+    Args:
+        params: (T, 43) the tracker's per-frame poses (any values where ``valid`` is False).
+        landmarks: the T frames' landmarks, NumPy or JAX arrays with a leading frame axis.
+        valid: (T,) frames with an estimate.
+        fps: frame rate, Hz.
+
+    Returns:
+        (T, 43) NumPy float32; frames that are not ``valid`` are returned unchanged.
+    """
+    params = np.asarray(params, np.float32)
+    valid = np.asarray(valid, bool)
+    T = len(params)
+    W, step = settings.window, settings.window - settings.overlap
+    half = settings.overlap // 2
+    safe = np.where(valid[:, None], params, np.asarray(body.facing_camera_params(2.5)))
+    lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
+    use3d, use2d = consensus_masks_jit(
+        shape, intrinsics, jnp.asarray(safe), jax.tree.map(jnp.asarray, lm),
+        settings.consensus_distance,
+    )  # fmt: skip
+    use3d, use2d = np.asarray(use3d), np.asarray(use2d)
+    conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
+    out = params.copy()
+    fps_arr = jnp.asarray(fps, jnp.float32)
+    start = 0
+    while True:
+        stop = min(start + W, T)
+        n = stop - start
+
+        def pad(x, fill=0):
+            x = x[start:stop]
+            widths = [(0, W - n)] + [(0, 0)] * (x.ndim - 1)
+            return np.pad(x, widths, constant_values=fill)
+
+        smoothed = smooth_window_jit(
+            settings, shape, intrinsics, jnp.asarray(pad(safe)),
+            jax.tree.map(lambda x: jnp.asarray(pad(x)), lm),
+            jnp.asarray(pad(use3d)), jnp.asarray(pad(use2d)), jnp.asarray(pad(valid)), fps_arr,
+            jnp.asarray(pad(conf)),
+        )  # fmt: skip
+        smoothed = np.asarray(smoothed)[:n]
+        first = 0 if start == 0 else half
+        last = n if stop == T else n - half
+        keep = np.arange(first, last)
+        out[start + keep] = np.where(
+            valid[start + keep, None], smoothed[keep], params[start + keep]
+        )
+        if stop == T:
+            return out
+        start += step
+
+
+consensus_masks_jit = jax.jit(consensus_masks, static_argnums=4)
+
+
+def _align_quaternions(p: Float[Array, 43], ref: Float[Array, 43]) -> Float[Array, 43]:
+    """``p`` with each quaternion's sign flipped where it points away from ``ref``'s (q and -q
+    are the same rotation; a difference must compare like with like)."""
+    q = p[3:].reshape(-1, 4)
+    r = ref[3:].reshape(-1, 4)
+    sign = jnp.where(jnp.sum(q * r, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+    return jnp.concatenate([p[:3], (q * sign).reshape(-1)])
+
+
+def online_step(
+    settings: SmoothSettings,
+    shape: body.BodyShape,
+    intrinsics: Intrinsics,
+    params: Float[Array, "frame 43"],
+    landmarks: Landmarks,
+    valid: Bool[Array, " frame"],
+    fps: Float[Array, ""],
+    pose_confidence: Float[Array, "frame kpt"],
+    state: TrackState,
+) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"], TrackState]:
+    """The online motion model after frame t (one jitted call): smooth the last
+    ``online_window`` frames (frame t last) and predict frame t+1.
+
+    Returns:
+        The smoothed window, its keypoints and the state for frame t+1: every hypothesis
+        moved by the same amount, so that the one at ``state.best`` (frame t's pose) lands
+        on the prediction (the newest smoothed pose plus ``settings.prediction`` times its
+        velocity), its keypoints (the temporal weights' M^h) recomputed, ``best`` the
+        prediction.
+    """
+    use3d, use2d = consensus_masks(
+        shape, intrinsics, params, landmarks, settings.consensus_distance
+    )
+    smoothed = smooth_window(
+        settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps,
+        pose_confidence, settings.online_iterations,
+    )  # fmt: skip
+    last = smoothed[-1]
+    prev = _align_quaternions(smoothed[-2], last)
+    velocity = jnp.where(valid[-2] & valid[-1], last - prev, 0.0)
+    predicted = body.normalize_params(last + settings.prediction * velocity)
+    shift = predicted - _align_quaternions(state.best, predicted)
+    hyps = jax.vmap(lambda h: body.normalize_params(_align_quaternions(h, predicted) + shift))(
+        state.hypotheses
+    )
+    new_state = TrackState(
+        hypotheses=hyps,
+        previous=jax.vmap(lambda h: body.keypoints(shape, h))(hyps),
+        best=predicted,
+        key=state.key,
+    )
+    return smoothed, jax.vmap(lambda p: body.keypoints(shape, p))(smoothed), new_state
+
+
+online_step_jit = eqx.filter_jit(online_step)

@@ -1,0 +1,192 @@
+"""The motion model (``_smooth.py``), the motion metrics, and the tracker's three modes.
+
+The smoother is checked against a ground truth it did not make: a smooth motion whose
+per-frame estimates carry independent noise; the solver's block elimination against a dense
+solve; the modes against each other on one generated clip.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import posetrack as pt
+from posetrack import _smooth
+from posetrack._observe import Landmarks
+
+# -- metrics ----------------------------------------------------------------------------------
+
+
+def _walk_truth(T=40):
+    t = np.arange(T)[:, None, None]
+    base = np.random.default_rng(0).normal(size=(1, 18, 3)) * 0.3 + [0.0, 0.0, 2.5]
+    return base + 0.2 * np.sin(t / 6.0) * np.array([1.0, 0.0, 0.3])
+
+
+def test_acceleration_error_ignores_offsets_and_counts_a_spike():
+    g = _walk_truth()
+    assert pt.acceleration_error(g + [0.05, -0.02, 0.1], g) == pytest.approx(0.0, abs=1e-6)
+    est = g.copy()
+    est[10, list(pt.BODY_JOINTS), 0] += 0.010  # a 10 mm jump in one frame
+    # Triples centred at 9, 10, 11 see 10, 20, 10 mm; 38 triples in all.
+    assert pt.acceleration_error(est, g) == pytest.approx(40.0 / 38.0, rel=1e-6)
+    est[5] = np.nan  # triples with a missing frame are skipped
+    assert np.isfinite(pt.acceleration_error(est, g))
+
+
+def test_swapped_limbs_needs_the_swap_to_be_closer_by_the_margin():
+    g = _walk_truth(5)
+    g[:, 4] = g[:, 7] + [0.3, 0.0, 0.0]  # wrists 300 mm apart
+    est = g.copy()
+    est[2, [4, 7]] = g[2, [7, 4]]  # frame 2: wrists exchanged
+    swapped = pt.swapped_limbs(est, g)
+    assert swapped[2, 1] and swapped.sum() == 1
+    assert pt.swapped_limb_frames(est, g) == 1
+    assert pt.swapped_limb_frames(est, g, margin_mm=700.0) == 0  # 600 mm gain < 700
+
+
+def test_jitter_and_gaussian_filter():
+    still = np.tile(_walk_truth(1), (20, 1, 1))
+    assert pt.jitter(still) == pytest.approx(0.0, abs=1e-9)
+    noisy = still + np.random.default_rng(1).normal(scale=0.01, size=still.shape)
+    assert pt.jitter(pt.gaussian_smoothed(noisy, 2.0)) < 0.4 * pt.jitter(noisy)
+    ramp = _walk_truth(30)
+    ramp[12] = np.nan
+    out = pt.gaussian_smoothed(ramp, 2.0)
+    assert np.isnan(out[12]).all() and np.isfinite(out[13]).all()
+    line = np.linspace(0, 1, 30)[:, None, None] * np.ones((1, 18, 3))
+    np.testing.assert_allclose(pt.gaussian_smoothed(line, 2.0)[9:21], line[9:21], atol=1e-9)
+
+
+# -- the solver -------------------------------------------------------------------------------
+
+
+def test_block_tridiagonal_solve_matches_a_dense_solve():
+    rng = np.random.default_rng(2)
+    K, n = 5, 4
+    D = rng.normal(size=(K, n, n))
+    D = np.einsum("kij,klj->kil", D, D) + 8 * np.eye(n)
+    U = rng.normal(size=(K, n, n))
+    b = rng.normal(size=(K, n))
+    dense = np.zeros((K * n, K * n))
+    for k in range(K):
+        dense[k * n : (k + 1) * n, k * n : (k + 1) * n] = D[k]
+        if k + 1 < K:
+            dense[k * n : (k + 1) * n, (k + 1) * n : (k + 2) * n] = U[k]
+            dense[(k + 1) * n : (k + 2) * n, k * n : (k + 1) * n] = U[k].T
+    f32 = [jnp.asarray(x, jnp.float32) for x in (D, U, b)]
+    x = _smooth._block_tridiagonal_solve(*f32)
+    np.testing.assert_allclose(
+        np.asarray(x).reshape(-1), np.linalg.solve(dense, b.reshape(-1)), rtol=1e-4, atol=1e-5
+    )
+
+
+@pytest.fixture(scope="module")
+def noisy_motion():
+    """A smooth motion (root sway, an elbow bending) estimated per frame with 25 mm noise."""
+    T = 32
+    shape = pt.BodyShape.default(jnp.float32)
+    rng = np.random.default_rng(3)
+    base = np.asarray(pt.facing_camera_params(2.5), np.float32)
+    truth = np.tile(base, (T, 1))
+    t = np.arange(T)
+    truth[:, 0] = 0.15 * np.sin(t / 5.0)
+    truth[:, 2] = 2.5 + 0.1 * np.cos(t / 7.0)
+    kp_true = np.asarray(jax.vmap(lambda p: pt.keypoints(shape, p))(jnp.asarray(truth)))
+    est = truth.copy()
+    est[:, :3] += rng.normal(scale=0.025, size=(T, 3))
+    landmarks = Landmarks(
+        keypoints2d=np.zeros((T, 18, 2), np.float32),
+        confidence=np.ones((T, 18), np.float32),
+        points3d=(kp_true + rng.normal(scale=0.025, size=kp_true.shape)).astype(np.float32),
+        detected=np.ones((T, 18), bool),
+        has_depth=np.ones((T, 18), bool),
+    )
+    intr = pt.Intrinsics.create(fx=525.0, fy=525.0, cx=160.0, cy=120.0, width=320, height=240)
+    intr = jax.tree.map(lambda x: jnp.asarray(x, jnp.float32), intr)
+    return shape, intr, truth, kp_true, est, landmarks
+
+
+def _smooth_window(noisy_motion, valid):
+    shape, intr, _, _, est, lm = noisy_motion
+    settings = pt.SmoothSettings()
+    use3d, use2d = _smooth.consensus_masks(shape, intr, jnp.asarray(est), lm, 0.12)
+    out = _smooth.smooth_window_jit(
+        settings, shape, intr, jnp.asarray(est), jax.tree.map(jnp.asarray, lm), use3d, use2d,
+        jnp.asarray(valid), jnp.asarray(30.0, jnp.float32), jnp.ones((len(est), 18)),
+    )  # fmt: skip
+    return np.asarray(out), np.asarray(jax.vmap(lambda p: pt.keypoints(shape, p))(out))
+
+
+def test_smoother_recovers_a_smooth_motion_from_noisy_frames(noisy_motion):
+    shape, _, _, kp_true, est, _ = noisy_motion
+    kp_est = np.asarray(jax.vmap(lambda p: pt.keypoints(shape, p))(jnp.asarray(est)))
+    _, kp_s = _smooth_window(noisy_motion, np.ones(len(est), bool))
+    before = pt.accuracy(kp_est, kp_true).mean_mm
+    after = pt.accuracy(kp_s, kp_true).mean_mm
+    assert after < 0.7 * before, (before, after)
+    assert pt.acceleration_error(kp_s, kp_true) < 0.2 * pt.acceleration_error(kp_est, kp_true)
+
+
+def test_invalid_frames_are_returned_unchanged(noisy_motion):
+    _, _, _, _, est, _ = noisy_motion
+    valid = np.ones(len(est), bool)
+    valid[:5] = False
+    params, _ = _smooth_window(noisy_motion, valid)
+    np.testing.assert_array_equal(params[:5], est[:5])
+    assert np.abs(params[5:] - est[5:]).max() > 1e-3
+
+
+def test_settings_reject_bad_values():
+    with pytest.raises(ValueError, match="accel_std"):
+        pt.SmoothSettings(accel_std=0.0)
+    with pytest.raises(ValueError, match="window"):
+        pt.SmoothSettings(window=7)
+
+
+# -- the tracker's modes ----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def clip():
+    return pt.synth.generate(531, motion="reach", n_frames=40, width=320, height=240)
+
+
+@pytest.fixture(scope="module")
+def modes(clip):
+    args = (clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics)
+    return {
+        "per-frame": pt.track(*args, mode="per-frame"),
+        "offline": pt.track(*args),
+        "online": pt.track(*args, mode="online", lag=2),
+    }
+
+
+def test_offline_is_the_per_frame_track_smoothed(clip, modes):
+    off, per = modes["offline"], modes["per-frame"]
+    assert off.mode == "offline" and per.per_frame_keypoints3d is None
+    np.testing.assert_array_equal(off.per_frame_keypoints3d, per.keypoints3d)
+    gt = clip.joints3d
+    assert pt.acceleration_error(off.keypoints3d, gt) < 0.5 * pt.acceleration_error(
+        per.keypoints3d, gt
+    )
+    assert pt.accuracy(off.keypoints3d, gt).mean_mm < pt.accuracy(per.keypoints3d, gt).mean_mm
+
+
+def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(modes):
+    on, per = modes["online"], modes["per-frame"]
+    assert on.mode == "online"
+    have = np.isfinite(per.keypoints3d).all(axis=(1, 2))
+    assert np.isfinite(on.keypoints3d[have]).all()
+    assert np.abs(on.keypoints3d[have] - per.keypoints3d[have]).max() > 1e-3
+
+
+def test_tracker_rejects_bad_motion_arguments(clip):
+    with pytest.raises(ValueError, match="mode"):
+        pt.Tracker(clip.intrinsics, mode="smooth")
+    with pytest.raises(ValueError, match="lag"):
+        pt.Tracker(clip.intrinsics, mode="online", lag=-1)
+    with pytest.raises(ValueError, match="online_window"):
+        pt.Tracker(clip.intrinsics, mode="online", lag=12)
+    with pytest.raises(ValueError, match="fps"):
+        pt.Tracker(clip.intrinsics, fps=0.0)
