@@ -13,7 +13,8 @@ out), with the fit's regularisers, plus a pull toward the tracker's own keypoint
 their confidence (they carry what the depth rendering and the hypotheses' vote found; without
 it the smoothed poses were measured worse than the per-frame ones), and ``X_t`` are the 18
 model keypoints of pose ``p_t``: a prior on joint accelerations, in metres, the quantity the
-acceleration error measures. Where a frame has few landmarks (occlusion) the prior carries its pose from the frames around it.
+acceleration error measures. Where a frame has few landmarks (occlusion) the prior carries
+its pose from the frames around it.
 
 **Solver.** Levenberg-Marquardt on the W x 43 parameters. Frame t's residuals depend on
 ``p_t`` only and an acceleration term on three consecutive poses, so the normal equations are

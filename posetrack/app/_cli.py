@@ -150,12 +150,11 @@ def _track(args) -> int:
         f"{'is' if config.n == 1 else 'es'} (the first frames include JAX compilation)",
         file=sys.stderr,
     )
-    fps = args.fps if args.fps is not None else rec.fps
-    fps = 30.0 if fps is None else fps
+    fps = args.fps if args.fps is not None else rec.fps  # None: unknown (not written)
     mode = "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
-        lag=args.online or 0, fps=fps,
+        lag=args.online or 0, fps=30.0 if fps is None else fps,
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
