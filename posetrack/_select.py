@@ -121,6 +121,16 @@ def temporal_distance(
     return jnp.minimum(d3, d_hmax) / d_hmax, jnp.minimum(d2, d_hmax) / d_hmax
 
 
+def consensus_set(
+    landmarks: Landmarks, points: Float[Array, "kpt 3"], intrinsics: Intrinsics, distance
+) -> tuple[Bool[Array, " kpt"], Bool[Array, " kpt"]]:
+    """The landmarks a pose agrees with (the RANSAC consensus set): ``(use3d, use2d)``, the 3D
+    landmarks within ``distance`` of the keypoints ``points`` and the detected 2D ones within
+    it in the image (metres at the keypoint's depth, :func:`landmark_distances`)."""
+    d3, d2 = landmark_distances(landmarks, points, intrinsics)
+    return landmarks.has_depth & (d3 < distance), landmarks.detected & (d2 < distance)
+
+
 def landmark_distances(
     landmarks: Landmarks, points: Float[Array, "kpt 3"], intrinsics: Intrinsics
 ) -> tuple[Float[Array, " kpt"], Float[Array, " kpt"]]:

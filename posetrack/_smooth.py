@@ -43,7 +43,7 @@ from ._camera import Intrinsics
 from ._fit import fit_problem, fit_residuals
 from ._observe import Landmarks
 from ._residuals import ResidualSettings, _sqrt_reweight
-from ._select import landmark_distances
+from ._select import consensus_set
 from ._step import TrackState
 
 #: Coefficients of the second difference X_{s+1} - 2 X_s + X_{s-1}, for frames s-1, s, s+1.
@@ -132,9 +132,8 @@ def consensus_masks(
     the keypoint has no depth), as in the tracker's consensus refit."""
 
     def one(p, lm):
-        d3, d2 = landmark_distances(lm, body.keypoints(shape, p), intrinsics)
-        use3d = lm.has_depth & (d3 < distance)
-        return use3d, lm.detected & ~lm.has_depth & (d2 < distance)
+        use3d, use2d = consensus_set(lm, body.keypoints(shape, p), intrinsics, distance)
+        return use3d, use2d & ~lm.has_depth
 
     return jax.vmap(one)(params, landmarks)
 
@@ -236,12 +235,11 @@ def smooth_window(
             p, shape, lm, intrinsics, use3d=u3, use2d=u2, residuals=settings.residuals
         )
         _, _, _, u3, u2, mpp, _, _ = args
-        return start, (lm, u3, u2, mpp)
+        return start, u3, u2, mpp
 
-    start, frame_args = jax.vmap(problem)(params, landmarks, use3d, use2d)
-    lms, u3, u2, mpp = frame_args
+    start, u3, u2, mpp = jax.vmap(problem)(params, landmarks, use3d, use2d)
     # An invalid frame has no data; its regularisers alone keep it where it is.
-    frame_args = (lms, u3 & valid[:, None], u2 & valid[:, None], mpp, start)
+    frame_args = (landmarks, u3 & valid[:, None], u2 & valid[:, None], mpp, start)
 
     targets = jax.vmap(lambda p: body.keypoints(shape, p))(start)
     frame_args = (*frame_args, targets, jnp.asarray(pose_confidence) * valid[:, None])

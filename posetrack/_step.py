@@ -26,7 +26,7 @@ from ._fit import fit_hypotheses, fit_pose
 from ._observe import Landmarks
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
-from ._select import landmark_distances, landmark_subsets
+from ._select import consensus_set, landmark_subsets
 
 
 class TrackState(eqx.Module):
@@ -149,10 +149,9 @@ def consensus_refit(
     Returns:
         ``(pose, delta)``: the refit and its Delta if that is not worse, else the winner's.
     """
-    tau = config.consensus_distance
-    d3, d2 = landmark_distances(landmarks, body.keypoints(shape, chosen), intrinsics)
-    use3d = landmarks.has_depth & (d3 < tau)
-    use2d = landmarks.detected & (d2 < tau)
+    use3d, use2d = consensus_set(
+        landmarks, body.keypoints(shape, chosen), intrinsics, config.consensus_distance
+    )
     refit = fit_pose(
         chosen, shape, landmarks, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit
     )

@@ -565,7 +565,8 @@ class Tracker:
         In ``mode="online"`` the motion model runs after the step: with ``lag=0`` the
         estimate's ``params`` and ``keypoints3d`` are the smoothed pose of this frame; with
         ``lag=L`` they are this frame's per-frame pose and :attr:`lagged` holds the smoothed
-        pose of the frame L frames back. The next frame starts from the predicted pose.
+        pose of the frame L frames back. With ``motion.feedback`` (off by default) the next
+        frame's hypotheses start from the predicted pose.
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
