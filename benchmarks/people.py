@@ -67,7 +67,7 @@ def scene_result(
     for name, (kp, conf, follow, gt) in runs.items():
         t0 = time.perf_counter()
         res = pt.track(seq.depth if name != "alone" else alone.depth, kp, conf,
-                       seq.intrinsics, config, follow=follow)  # fmt: skip
+                       seq.intrinsics, config, follow=follow, mode="per-frame")  # fmt: skip
         acc = pt.accuracy(res.keypoints3d, gt)
         ident = pt.followed_identity(res.keypoints3d, truth)
         out[name] = {

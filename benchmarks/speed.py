@@ -806,7 +806,8 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     update_over = np.asarray(walls) - np.asarray(tr.step_times[-len(walls) :])
     # run() on frames 1.. of a tracker initialised on frame 0: the one-off initialisation
     # (pose from landmarks, 60-step fit, floor RANSAC) is not a per-frame cost.
-    tr2 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape)
+    # Per-frame: the loop's own overhead (motion.py times the offline smoother beside it).
+    tr2 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape, mode="per-frame")
     tr2.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
     n_before = len(tr2.step_times)
     t0 = time.perf_counter()

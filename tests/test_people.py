@@ -36,15 +36,20 @@ def scenes():
 
 @pytest.fixture(scope="module")
 def tracked(scenes):
-    """(follow, per-frame, alone) results per scene, with the shipped configuration."""
+    """(follow, per-frame, alone) results per scene, with the shipped configuration.
+
+    Per-frame poses (no motion model): the association is what is tested, and smoothing over
+    time would blur the very hops the per-frame choice is expected to make."""
     config = pt.TrackerConfig()
+    mode = "per-frame"
     out = []
     for seq, alone in scenes:
-        follow = pt.track(seq.depth, seq.people2d, seq.people_confidence, seq.intrinsics, config)
-        per_frame = pt.track(
-            seq.depth, seq.people2d, seq.people_confidence, seq.intrinsics, config, follow=None
+        kp, conf = seq.people2d, seq.people_confidence
+        follow = pt.track(seq.depth, kp, conf, seq.intrinsics, config, mode=mode)
+        per_frame = pt.track(seq.depth, kp, conf, seq.intrinsics, config, follow=None, mode=mode)
+        solo = pt.track(
+            alone.depth, alone.keypoints2d, alone.confidence, alone.intrinsics, config, mode=mode
         )
-        solo = pt.track(alone.depth, alone.keypoints2d, alone.confidence, alone.intrinsics, config)
         out.append((follow, per_frame, solo))
     return out
 
