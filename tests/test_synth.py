@@ -545,3 +545,199 @@ def test_hallucinated_limbs_stay_attached_to_their_parent():
     assert np.median(dist_to_gt) > 5  # wrong ...
     assert np.all((bone > 0.75 * 50) & (bone < 1.25 * 50))  # ... but plausible
     assert conf[:, 4].mean() < conf[:, 3].mean() - 0.2
+
+
+# --- variety="wide" ---------------------------------------------------------------------
+
+
+def _runs(on: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and lengths of the runs of True in a (T,) bool array."""
+    e = np.diff(np.r_[0, on.astype(int), 0])
+    starts = np.flatnonzero(e == 1)
+    return starts, np.flatnonzero(e == -1) - starts
+
+
+def test_bad_variety_raises_naming_it():
+    with pytest.raises(ValueError, match=r"variety.*'medium'"):
+        ps.generate(0, variety="medium")
+
+
+def test_wide_is_deterministic_per_seed_and_keeps_the_standard_draws():
+    kw = dict(motion="wave", n_frames=6, width=80, height=60)
+    a, b = ps.generate(5, variety="wide", **kw), ps.generate(5, variety="wide", **kw)
+    for name in ("depth", "rgb", "keypoints2d", "confidence", "joints3d", "visible"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert a.meta["wide"] == b.meta["wide"] and a.meta["variety"] == "wide"
+    std = ps.generate(5, **kw)
+    assert std.meta["variety"] == "standard" and std.meta["wide"] is None
+    # Same subject stream (height, colours), widened body and camera on top of it.
+    assert a.subject["height"] == std.subject["height"]
+    assert a.subject["colors"] == std.subject["colors"]
+    assert a.subject["girth_scale"] != std.subject["girth_scale"]
+    assert a.meta["scene"]["camera_height"] != std.meta["scene"]["camera_height"]
+    assert a.meta["detector"]["sigma_px"] != std.meta["detector"]["sigma_px"]
+    assert not np.array_equal(a.joints3d, std.joints3d)
+
+
+def test_wide_varies_body_camera_and_noise_more_than_standard():
+    def spread(variety):
+        seqs = [ps.generate(s, n_frames=1, width=64, height=48, with_rgb=False,
+                            variety=variety) for s in range(10)]
+        rows = [(q.meta["scene"]["camera_height"], q.meta["scene"]["tilt_deg"],
+                 q.subject["girth_scale"], q.meta["sensor"]["noise_a"],
+                 q.meta["sensor"]["holes_per_frame"], q.meta["detector"]["sigma_px"],
+                 q.meta["detector"]["p_miss_self"], q.meta["detector"]["swap_rate"])
+                for q in seqs]
+        return np.ptp(np.array(rows), axis=0), np.std(np.array(rows), axis=0), seqs
+
+    std, std_sd, _ = spread("standard")
+    wide, wide_sd, seqs = spread("wide")
+    assert std[0] < 0.4 and wide[0] > 0.8  # camera height, m
+    assert wide[1] > 15 > std[1]  # pitch, deg
+    assert wide_sd[2] > 1.3 * std_sd[2]  # girth scale
+    assert np.all(std[3:] == 0) and np.all(wide[3:] > 0)  # sensor/detector constants
+    assert wide[3] > 0.5 * ps.SensorConfig().noise_a
+    assert wide[5] > ps.DetectorConfig().sigma_px
+    assert len({q.meta["detector"]["noise_family"] for q in seqs}) > 1
+    for q in seqs:  # every draw is recorded, and the configs used are the drawn ones
+        w = q.meta["wide"]
+        assert w["sensor_applied"] and w["detector_applied"]
+        assert q.meta["sensor"]["noise_a"] == pytest.approx(
+            ps.SensorConfig().noise_a * w["depth_noise_scale"])
+        assert q.subject["variation_girth"] == w["body"]["girth"]
+        assert 0.6 <= w["camera"]["height"] <= 2.2 and abs(w["camera"]["roll_deg"]) <= 5
+        assert 0 <= q.meta["scene"]["tilt_deg"] <= 35 + 1e-9
+
+
+def test_wide_leaves_explicit_sensor_and_detector_alone():
+    det = ps.DetectorConfig(sigma_px=1.0)
+    q = ps.generate(2, n_frames=1, width=64, height=48, variety="wide", detector=det,
+                    sensor=ps.SensorConfig())
+    assert q.meta["detector"] == dataclasses.asdict(det)
+    assert q.meta["sensor"] == dataclasses.asdict(ps.SensorConfig())
+    assert not q.meta["wide"]["detector_applied"] and not q.meta["wide"]["sensor_applied"]
+    assert q.meta["wide"]["jitter_scale"] > 0  # the draw is still reported
+
+
+def test_body_variation_changes_exactly_what_it_says():
+    from posetrack.synth._skeleton import SEG, BodyVariation, sample_subject
+
+    def subject(variation):
+        return sample_subject(np.random.default_rng(4), variation=variation)
+
+    base, same = subject(None), subject(BodyVariation())
+    np.testing.assert_array_equal(base.offsets, same.offsets)
+    assert base.primitives == same.primitives
+    v = BodyVariation(girth=1.3, upper_arm=1.1, shoulder_width=1.2, shoulder_drop=0.05,
+                      torso_shift=0.02)
+    wide = subject(v)
+    assert wide.height == base.height
+    assert wide.dims["girth_scale"] == pytest.approx(1.3 * base.dims["girth_scale"])
+    assert wide.dims["upper_arm"] == pytest.approx(1.1 * base.dims["upper_arm"])
+    assert wide.dims["forearm"] == base.dims["forearm"]
+    r_sh = SEG["r_upper_arm"]
+    assert wide.offsets[r_sh, 1] == pytest.approx(-0.05) and base.offsets[r_sh, 1] == 0
+    assert wide.offsets[r_sh, 0] == pytest.approx(1.2 * base.offsets[r_sh, 0])
+    prim = {p.name: p for p in base.primitives}
+    wprim = {p.name: p for p in wide.primitives}
+    assert wprim["r_thigh"].ra == pytest.approx(1.3 * prim["r_thigh"].ra)
+    assert wprim["chest"].centre[2] == pytest.approx(prim["chest"].centre[2] + 0.02)
+    body = np.arange(1, 14)  # the face keypoints' radius is fixed
+    np.testing.assert_allclose(wide.kpt_radius[body], 1.3 * base.kpt_radius[body])
+
+
+def _static_layout(T):
+    gt = np.random.default_rng(1).uniform(20, 300, size=(1, 18, 2)).repeat(T, 0)
+    ones = np.ones((T, 18))
+    return gt, ones, ones.astype(bool)
+
+
+def test_wide_detector_swaps_last_many_frames():
+    T = 1500
+    gt, ones, vis = _static_layout(T)
+    longest = []
+    for seed in range(4):
+        meta = ps.generate(seed, n_frames=1, width=64, height=48, with_rgb=False,
+                           variety="wide").meta
+        lo, hi = meta["detector"]["swap_lengths"]
+        assert lo >= 5 and hi >= 12
+        # The drawn config, with only its limb swaps left on, on a static far-apart layout.
+        cfg = dataclasses.replace(
+            ps.DetectorConfig(**meta["detector"]), p_miss_visible=0.0, outlier_rate=0.0,
+            body_swap_rate=0.0, snap_rate=0.0, sigma_px=1.0)
+        kp, _ = ps.simulate_detector(np.random.default_rng(seed), gt, ones, 0 * ones, vis,
+                                     width=320, height=320, config=cfg)
+        lengths = []
+        for r, l in ((4, 7), (10, 13)):
+            swapped = np.linalg.norm(kp[:, r] - gt[:, l], axis=-1) < 5
+            starts, n = _runs(swapped)
+            lengths += list(n[starts + n < T])  # complete episodes only
+        assert len(lengths) > 3 and min(lengths) >= lo, seed
+        longest.append(max(lengths))
+    assert max(longest) > 12
+    # The standard detector's swaps are short (geometric, mean 4 frames).
+    cfg = ps.DetectorConfig(p_miss_visible=0.0, outlier_rate=0.0, swap_rate=0.01)
+    kp, _ = ps.simulate_detector(np.random.default_rng(0), gt, ones, 0 * ones, vis,
+                                 width=320, height=320, config=cfg)
+    _, n = _runs(np.linalg.norm(kp[:, 4] - gt[:, 7], axis=-1) < 5 * cfg.sigma_px)
+    assert np.median(n) < 5
+
+
+def test_whole_body_swaps_and_limb_snaps():
+    T = 2000
+    gt, ones, vis = _static_layout(T)
+    off = dict(p_miss_visible=0.0, outlier_rate=0.0, swap_rate=0.0, sigma_px=1.0,
+               swap_lengths=(5, 20))
+
+    def near(kp, k, j):
+        return np.linalg.norm(kp[:, k] - gt[:, j], axis=-1) < 5
+
+    cfg = ps.DetectorConfig(body_swap_rate=0.01, **off)
+    kp, _ = ps.simulate_detector(np.random.default_rng(0), gt, ones, 0 * ones, vis,
+                                 width=320, height=320, config=cfg)
+    body = near(kp, 2, 5)  # right shoulder reported on the left one
+    assert 0.03 < body.mean() < 0.5
+    for r, l in ((2, 5), (4, 7), (8, 11), (13, 10), (16, 17)):  # all pairs at once
+        np.testing.assert_array_equal(near(kp, r, l), body)
+    assert _runs(body)[1].min() >= 5
+    cfg = ps.DetectorConfig(snap_rate=0.01, **off)
+    kp, conf = ps.simulate_detector(np.random.default_rng(0), gt, ones, 0 * ones, vis,
+                                    width=320, height=320, config=cfg)
+    on_left = near(kp, 4, 7) & near(kp, 7, 7)  # both wrists on the left one
+    on_right = near(kp, 4, 4) & near(kp, 7, 4)
+    assert on_left.any() and on_right.any()
+    assert np.all(near(kp, 3, 6)[on_left])  # the elbow goes with the wrist
+    assert not np.any(near(kp, 2, 5) | near(kp, 5, 2))  # shoulders stay
+
+
+@pytest.mark.parametrize("family", ["student_t", "laplace"])
+def test_heavy_tailed_detector_noise_keeps_sigma(family):
+    T = 6000
+    gt, ones, vis = _static_layout(T)
+    kw = dict(outlier_rate=0.0, swap_rate=0.0, p_miss_visible=0.0, rho=0.0, noise_dof=5.0,
+              hallucination_deg=0.0)
+    errs = {}
+    for fam in ("gaussian", family):
+        cfg = ps.DetectorConfig(noise_family=fam, **kw)
+        kp, _ = ps.simulate_detector(np.random.default_rng(0), gt, ones, 0 * ones, vis,
+                                     width=640, height=640, config=cfg)
+        errs[fam] = (kp - gt).ravel() / cfg.sigma_px
+    kurt = {k: np.mean(e**4) / np.mean(e**2) ** 2 - 3 for k, e in errs.items()}
+    assert np.std(errs[family]) == pytest.approx(1.0, rel=0.08)
+    assert abs(kurt["gaussian"]) < 0.2 and kurt[family] > 1.5
+    with pytest.raises(ValueError, match="noise_family"):
+        ps.DetectorConfig(noise_family="cauchy")
+
+
+def test_cli_generate_passes_variety(tmp_path):
+    from posetrack.app._cli import main
+
+    out = tmp_path / "rec"
+    args = ["generate", str(out), "--frames", "2", "--width", "64", "--height", "48",
+            "--seed", "3", "--quiet", "--variety", "wide"]
+    assert main(args) == 0
+    gt = np.load(out / "ground_truth.npz")
+    ref = ps.generate(3, n_frames=2, width=64, height=48, variety="wide")
+    np.testing.assert_allclose(gt["joints3d"], ref.joints3d)
+    with pytest.raises(SystemExit):
+        main([*args[:-1], "medium"])

@@ -35,7 +35,7 @@ def _generate(args) -> int:
     seq = synth.generate(
         args.seed, motion=args.motion, n_frames=args.frames, occlusion_level=args.occlusion,
         width=args.width, height=args.height, progress=not args.quiet,
-        bystander=args.second_person,
+        bystander=args.second_person, variety=args.variety,
     )  # fmt: skip
     synth.save(seq, args.out, overwrite=args.overwrite)
     print(f"wrote {len(seq.depth)} frames to {args.out}")
@@ -325,6 +325,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--second-person", action="store_true",
         help="a second person walks across the view, leaves and comes back (the keypoint "
         "files list both, in random order)",
+    )  # fmt: skip
+    g.add_argument(
+        "--variety", choices=("standard", "wide"), default="standard",
+        help="wide: a per-seed wider draw of body, camera, depth noise and detector errors "
+        "(see posetrack.synth.generate) (default: %(default)s)",
     )  # fmt: skip
     g.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
     g.add_argument("--quiet", action="store_true", help="no progress bar")

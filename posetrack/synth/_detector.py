@@ -25,6 +25,16 @@ Error model (pixel sizes for a 640-px-wide image, scaled with the width):
 * left/right swaps: episodes (mean ``swap_frames`` frames) exchanging the elbow+wrist,
   knee+ankle or eye+ear pairs, at ``swap_rate`` per group-frame, x9 when the two sides
   overlap in the image (side views).
+
+Off by default (the "wide" variety of ``generate`` turns them on):
+
+* heavy-tailed localisation noise (``noise_family`` "student_t" or "laplace", same variance);
+* swap lengths drawn uniformly from ``swap_lengths`` instead of geometric;
+* whole-body left/right swaps (all eight pairs, shoulders and hips included: the person
+  seen facing the other way) at ``body_swap_rate`` per frame, x9 when the shoulders and hips
+  overlap;
+* snaps: an arm's (leg's) elbow+wrist (knee+ankle) reported on the other arm (leg), so both
+  sides sit on one limb, at ``snap_rate`` per group-frame, x9 when the sides overlap.
 """
 
 from __future__ import annotations
@@ -33,11 +43,13 @@ import dataclasses
 
 import numpy as np
 
-from ._skeleton import KPT_PARENT, N_KPT
+from ._skeleton import KPT_PARENT, LR_PAIRS, N_KPT
 
 _FACE = (0, 14, 15, 16, 17)
 _LIMB_END = (3, 4, 6, 7, 9, 10, 12, 13)
 _SWAP_GROUPS = (((3, 6), (4, 7)), ((9, 12), (10, 13)), ((14, 15), (16, 17)))
+_SNAP_GROUPS = _SWAP_GROUPS[:2]  # arms and legs
+NOISE_FAMILIES = ("gaussian", "student_t", "laplace")
 _BONES = ((1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (1, 8), (8, 9), (9, 10), (1, 11),
           (11, 12), (12, 13), (8, 11), (2, 5), (1, 0))
 _CONFUSABLE = {3: (6, 4, 2), 4: (7, 3), 6: (3, 7, 5), 7: (4, 6), 9: (12, 10, 8), 10: (13, 9),
@@ -68,6 +80,30 @@ class DetectorConfig:
     outlier_frames: float = 3.0
     swap_rate: float = 0.002
     swap_frames: float = 4.0
+    noise_family: str = "gaussian"
+    """Localisation noise distribution, one of :data:`NOISE_FAMILIES`; the heavy-tailed ones
+    are scaled to the same variance (``sigma_px``)."""
+    noise_dof: float = 3.0
+    """Degrees of freedom of the "student_t" family (> 2)."""
+    swap_lengths: tuple[int, int] | None = None
+    """(min, max) frames of a swap or snap episode, uniform; None: geometric with mean
+    ``swap_frames``."""
+    body_swap_rate: float = 0.0
+    """Start rate of whole-body left/right swaps, per frame."""
+    snap_rate: float = 0.0
+    """Start rate of one limb snapping onto the other side's limb, per group-frame."""
+
+    def __post_init__(self) -> None:
+        if self.noise_family not in NOISE_FAMILIES:
+            raise ValueError(f"DetectorConfig: noise_family must be one of {NOISE_FAMILIES}, "
+                             f"got {self.noise_family!r}")
+        if not self.noise_dof > 2:
+            raise ValueError(f"DetectorConfig: noise_dof must be > 2, got {self.noise_dof!r}")
+        if self.swap_lengths is not None:
+            lo, hi = self.swap_lengths
+            if int(lo) != lo or int(hi) != hi or not 1 <= lo <= hi:
+                raise ValueError("DetectorConfig: swap_lengths must be integers 1 <= min <= "
+                                 f"max, got {self.swap_lengths!r}")
 
     @staticmethod
     def perfect() -> DetectorConfig:
@@ -81,9 +117,15 @@ class DetectorConfig:
         )
 
 
-def _ar1(rng: np.random.Generator, shape: tuple[int, ...], rho: float) -> np.ndarray:
-    """Unit-variance AR(1) noise along axis 0."""
-    n = rng.standard_normal(shape)
+def _ar1(rng: np.random.Generator, shape: tuple[int, ...], rho: float,
+         family: str = "gaussian", dof: float = 3.0) -> np.ndarray:
+    """Unit-variance AR(1) noise along axis 0, innovations of the given family."""
+    if family == "gaussian":
+        n = rng.standard_normal(shape)
+    elif family == "student_t":
+        n = rng.standard_t(dof, size=shape) * np.sqrt((dof - 2.0) / dof)
+    else:  # laplace: variance 2 b^2
+        n = rng.laplace(0.0, np.sqrt(0.5), size=shape)
     out = np.empty(shape)
     out[0] = n[0]
     c = np.sqrt(max(1 - rho * rho, 0.0))
@@ -92,13 +134,18 @@ def _ar1(rng: np.random.Generator, shape: tuple[int, ...], rho: float) -> np.nda
     return out
 
 
-def _episodes(rng: np.random.Generator, start_p: np.ndarray, mean_len: float) -> np.ndarray:
-    """Boolean (T, ...) on/off episodes: start with prob start_p (T, ...), geometric length."""
+def _episodes(rng: np.random.Generator, start_p: np.ndarray, mean_len: float,
+              lengths: tuple[int, int] | None = None) -> np.ndarray:
+    """Boolean (T, ...) on/off episodes: start with prob start_p (T, ...), geometric length
+    with mean ``mean_len``, or uniform in ``lengths`` = (min, max) when given."""
     T = start_p.shape[0]
     on = np.zeros(start_p.shape, dtype=bool)
     left = np.zeros(start_p.shape[1:], dtype=int)
     u = rng.uniform(size=start_p.shape)
-    lens = rng.geometric(1.0 / max(mean_len, 1.0), size=start_p.shape)
+    if lengths is None:
+        lens = rng.geometric(1.0 / max(mean_len, 1.0), size=start_p.shape)
+    else:
+        lens = rng.integers(int(lengths[0]), int(lengths[1]) + 1, size=start_p.shape)
     for t in range(T):
         start = (left == 0) & (u[t] < start_p[t])
         left = np.where(start, lens[t], left)
@@ -151,7 +198,7 @@ def simulate_detector(rng: np.random.Generator, joints2d: np.ndarray, self_vis: 
             kp[hidden, k] = alt[hidden]
     # Localisation noise, larger when hidden.
     sig = cfg.sigma_px * s * (1 + (cfg.occluded_sigma_factor - 1) * (1 - vis))
-    kp += sig[..., None] * _ar1(rng, (T, N_KPT, 2), cfg.rho)
+    kp += sig[..., None] * _ar1(rng, (T, N_KPT, 2), cfg.rho, cfg.noise_family, cfg.noise_dof)
     # Confidence.
     m = cfg.conf_visible - (cfg.conf_visible - cfg.conf_self) * (1 - self_vis)
     m = m - (m - cfg.conf_occluder) * occ
@@ -188,17 +235,32 @@ def simulate_detector(rng: np.random.Generator, joints2d: np.ndarray, self_vis: 
         for group in _SWAP_GROUPS:
             r_idx = [a for a, _ in group]
             l_idx = [b for _, b in group]
-            d = np.linalg.norm(joints2d[:, r_idx] - joints2d[:, l_idx], axis=-1).mean(axis=1)
-            overlap = np.exp(-((d / (0.08 * size)) ** 2))
-            on = _episodes(rng, (cfg.swap_rate * (1 + 8 * overlap))[:, None], cfg.swap_frames)
-            sw = on[:, 0]
-            if sw.any():
-                kr, kl = kp[sw][:, r_idx].copy(), kp[sw][:, l_idx].copy()
-                cr, cl = conf[sw][:, r_idx].copy(), conf[sw][:, l_idx].copy()
-                kp[np.ix_(sw, r_idx)] = kl
-                kp[np.ix_(sw, l_idx)] = kr
-                conf[np.ix_(sw, r_idx)] = cl
-                conf[np.ix_(sw, l_idx)] = cr
+            overlap = _overlap(joints2d, r_idx, l_idx, size)
+            on = _episodes(rng, (cfg.swap_rate * (1 + 8 * overlap))[:, None], cfg.swap_frames,
+                           cfg.swap_lengths)
+            _swap(kp, conf, on[:, 0], r_idx, l_idx)
+    # Whole-body swaps (facing direction misread), likelier when the torso is seen sideways.
+    if cfg.body_swap_rate > 0:
+        r_idx = [a for a, _ in LR_PAIRS]
+        l_idx = [b for _, b in LR_PAIRS]
+        overlap = _overlap(joints2d, [2, 8], [5, 11], size)
+        on = _episodes(rng, (cfg.body_swap_rate * (1 + 8 * overlap))[:, None],
+                       cfg.swap_frames, cfg.swap_lengths)
+        _swap(kp, conf, on[:, 0], r_idx, l_idx)
+    # Snaps: one side's limb reported on the other side's limb (both on one arm or leg).
+    if cfg.snap_rate > 0:
+        for group in _SNAP_GROUPS:
+            r_idx = [a for a, _ in group]
+            l_idx = [b for _, b in group]
+            overlap = _overlap(joints2d, r_idx, l_idx, size)
+            on = _episodes(rng, (cfg.snap_rate * (1 + 8 * overlap))[:, None], cfg.swap_frames,
+                           cfg.swap_lengths)[:, 0]
+            for t0, t1 in _runs(on):
+                src, dst = (r_idx, l_idx) if rng.uniform() < 0.5 else (l_idx, r_idx)
+                n = t1 - t0
+                kp[t0:t1, dst] = kp[t0:t1, src] + cfg.sigma_px * s * rng.standard_normal(
+                    (n, len(dst), 2))
+                conf[t0:t1, dst] = conf[t0:t1, src] * rng.uniform(0.7, 1.0, size=(n, len(dst)))
     # Misses.
     p_self = np.full(N_KPT, cfg.p_miss_self)
     p_self[list(_FACE)] = cfg.p_miss_face
@@ -212,6 +274,35 @@ def simulate_detector(rng: np.random.Generator, joints2d: np.ndarray, self_vis: 
     kp[miss] = 0.0
     conf[miss] = 0.0
     return kp.astype(np.float32), conf.astype(np.float32)
+
+
+def _overlap(joints2d: np.ndarray, r_idx: list[int], l_idx: list[int], size: np.ndarray
+             ) -> np.ndarray:
+    """(T,) how much the right and left keypoints coincide in the image: 1 on top of each
+    other, ~0 when apart by more than ~15 % of the person's size."""
+    d = np.linalg.norm(joints2d[:, r_idx] - joints2d[:, l_idx], axis=-1).mean(axis=1)
+    return np.exp(-((d / (0.08 * size)) ** 2))
+
+
+def _swap(kp: np.ndarray, conf: np.ndarray, sw: np.ndarray, r_idx: list[int],
+          l_idx: list[int]) -> None:
+    """Exchange the right and left keypoints and confidences in the frames ``sw`` (T,) bool,
+    in place."""
+    if not sw.any():
+        return
+    kr, kl = kp[sw][:, r_idx].copy(), kp[sw][:, l_idx].copy()
+    cr, cl = conf[sw][:, r_idx].copy(), conf[sw][:, l_idx].copy()
+    kp[np.ix_(sw, r_idx)] = kl
+    kp[np.ix_(sw, l_idx)] = kr
+    conf[np.ix_(sw, r_idx)] = cl
+    conf[np.ix_(sw, l_idx)] = cr
+
+
+def _runs(on: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of True in a (T,) bool array."""
+    edges = np.diff(np.concatenate([[0], on.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), np.flatnonzero(edges == -1).tolist(),
+                    strict=True))
 
 
 def perfect_detector(joints2d: np.ndarray, in_image: np.ndarray) -> tuple[np.ndarray,

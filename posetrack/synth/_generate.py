@@ -29,12 +29,14 @@ from ._skeleton import (
     sample_subject,
 )
 from ._surface import Background, hair_mask, primitives_camera, render_frame, shade
+from ._variety import VARIETIES, draw_wide
 
 # Independent random streams per concern, keyed by (seed, stream): changing one option (say
 # the occlusion level) leaves the subject, motion, scene and sensor noise unchanged. The
 # two-person streams come after the original ones, so single-person output is as it was.
 _SUBJECT, _MOTION, _SCENE, _SENSOR, _DETECTOR, _OCCLUDER, _RGB = range(1, 8)
 _BYSTANDER, _BYSTANDER_DET, _PEOPLE_ORDER = 8, 9, 10
+_WIDE = 11  # variety="wide": its own stream, so the standard streams draw what they drew
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -78,7 +80,10 @@ class SyntheticSequence:
     subject: dict[str, Any]
     """The generated person's dimensions (m) and colours."""
     meta: dict[str, Any]
-    """Motion, seed, levels, scene, sensor and detector settings, per-keypoint
+    """Motion, seed, levels, scene, sensor and detector settings (those used, after any
+    ``variety="wide"`` changes), ``variety`` and ``wide`` (None, or every wide draw as a
+    nested dict plus ``sensor_applied`` / ``detector_applied``: False where an explicit
+    ``sensor=`` / ``detector=`` won), per-keypoint
     ``self_visibility``, ``occluded_fraction`` (rectangles) and ``hidden_fraction``
     (rectangles or another person in front), (T, 18) each. ``meta["bystander"]`` is None
     without a second person, else a dict: ``height`` (m) and ``subject`` (as ``subject``),
@@ -240,6 +245,7 @@ def generate(
     yaw_deg: float | None = None,
     with_rgb: bool = True,
     bystander: bool = False,
+    variety: str = "standard",
 ) -> SyntheticSequence:
     """Render a synthetic RGB-D sequence of one random person, optionally with a second one.
 
@@ -279,6 +285,17 @@ def generate(
             the same call without bystander, and so is every output until the bystander
             first comes into view; after that the depth noise differs everywhere (the sensor
             model draws a content-dependent amount of randomness per frame).
+        variety: "standard" (the generator as it always was) or "wide": a per-clip draw from
+            a separate stream of the seed widens the body (girth, limb lengths, shoulder
+            and hip width, shoulder drop, joint depth inside the torso), the camera (height
+            0.6-2.2 m, pitch 0-35 deg, roll +-5 deg), the depth noise and dropouts, and the
+            detector errors (jitter scale and family, misses, outliers, longer swaps,
+            whole-body swaps, limb snaps); ranges in ``posetrack.synth._variety``. The
+            subject's other draws, the motion and the rest of the scene stay those of the
+            standard clip. An explicit ``sensor`` or ``detector`` wins over the wide draw
+            for that part. ``fps`` is never changed: benchmarks should vary it themselves.
+            The draw is in ``meta["wide"]``. A bystander keeps a standard body but shares
+            the detector errors.
 
     Raises:
         ValueError: naming the bad argument. FileNotFoundError: real motion data missing.
@@ -290,6 +307,8 @@ def generate(
     if int(occlusion_level) != occlusion_level or not 0 <= occlusion_level <= MAX_LEVEL:
         raise ValueError(f"generate: occlusion_level must be 0..{MAX_LEVEL}, got "
                          f"{occlusion_level!r}")
+    if variety not in VARIETIES:
+        raise ValueError(f"generate: variety must be one of {VARIETIES}, got {variety!r}")
     if motion not in MOTIONS and ":" not in motion:
         raise ValueError(f"generate: unknown motion {motion!r}; built-in: {MOTIONS}, real: "
                          "see list_real_motions()")
@@ -303,21 +322,30 @@ def generate(
     n_frames, W, H = int(n_frames), intrinsics.width, intrinsics.height
     fx, fy = float(intrinsics.fx), float(intrinsics.fy)
     cx, cy = float(intrinsics.cx), float(intrinsics.cy)
-    scfg = sensor or SensorConfig()
-    dcfg = detector or DetectorConfig()
 
     def rng(stream: int) -> np.random.Generator:
         return np.random.default_rng([int(seed) & 0xFFFFFFFF, stream])
 
+    wide = draw_wide(rng(_WIDE)) if variety == "wide" else None
+    if sensor is not None:
+        scfg = sensor
+    else:
+        scfg = wide.sensor_config() if wide is not None else SensorConfig()
+    if detector is not None:
+        dcfg = detector
+    else:
+        dcfg = wide.detector_config() if wide is not None else DetectorConfig()
+
     t_start = time.perf_counter()
-    subject = sample_subject(rng(_SUBJECT))
+    subject = sample_subject(rng(_SUBJECT), variation=wide.body if wide is not None else None)
     if motion in MOTIONS:
         clip = procedural_motion(motion, subject, n_frames=n_frames, fps=fps, rng=rng(_MOTION))
     else:
         clip = real_motion(motion, subject, n_frames=n_frames, fps=fps, start=motion_start)
     r_scene = rng(_SCENE)
     clip = place_motion(clip, r_scene, yaw_deg=yaw_deg)
-    scene, clip = make_scene(r_scene, intrinsics, subject, clip)
+    scene, clip = make_scene(r_scene, intrinsics, subject, clip,
+                             camera=wide.camera if wide is not None else None)
     floor_rgb = tuple(int(v) for v in r_scene.integers(90, 190, size=3))
     wall_rgb = tuple(int(v) for v in r_scene.integers(160, 235, size=3))
 
@@ -468,6 +496,11 @@ def generate(
         "occluded_fraction": occ,
         "hidden_fraction": hidden,
         "bystander": by_meta,
+        "variety": variety,
+        "wide": None if wide is None else {
+            **wide.to_dict(), "sensor_applied": sensor is None,
+            "detector_applied": detector is None,
+        },
         "generation_seconds": time.perf_counter() - t_start,
     }
     return SyntheticSequence(

@@ -78,6 +78,22 @@ class Scene:
         return ok
 
 
+@dataclasses.dataclass(frozen=True)
+class CameraVariation:
+    """Camera placement that replaces :func:`make_scene`'s own draw (the "wide" variety of
+    ``generate``); everything else about the scene is drawn as usual."""
+
+    height: float
+    """Camera centre above the floor, m."""
+    extra_tilt_deg: float
+    """Added to the pitch that aims the optical axis at the body's middle, degrees (the total
+    is clipped to [0, ``max_tilt_deg``]: the camera never looks up)."""
+    roll_deg: float
+    """Roll about the optical axis, degrees."""
+    max_tilt_deg: float = 35.0
+    """Largest downward pitch, degrees."""
+
+
 def _intr_np(intr: Intrinsics) -> tuple[float, float, float, float, int, int]:
     return (float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), intr.width,
             intr.height)
@@ -136,11 +152,18 @@ def place_motion(clip: MotionClip, rng: np.random.Generator, *,
 
 
 def make_scene(rng: np.random.Generator, intrinsics: Intrinsics, subject: Subject,
-               clip: MotionClip) -> tuple[Scene, MotionClip]:
+               clip: MotionClip, *, camera: CameraVariation | None = None
+               ) -> tuple[Scene, MotionClip]:
     """Camera and room for a placed motion; moves the motion to stand in front of the camera.
 
     The person's distance is drawn in [2, 3.5] m and increased (up to 4.2 m) until the whole
     body (head top to soles) stays inside the image in >= 95 % of the frames.
+
+    Args:
+        rng: randomness (the same draws are made whatever ``camera`` is).
+        intrinsics: the camera's intrinsics. subject: the person. clip: the placed motion.
+        camera: camera height, tilt and roll to use instead of the drawn 0.8-1.2 m, aim + 1-4
+            deg and +-1.5 deg.
     """
     h_cam = float(rng.uniform(0.8, 1.2))
     roll = np.deg2rad(rng.uniform(-1.5, 1.5))
@@ -148,6 +171,9 @@ def make_scene(rng: np.random.Generator, intrinsics: Intrinsics, subject: Subjec
     x_off = float(rng.uniform(-0.2, 0.2))
     d = float(rng.uniform(2.0, 3.5))
     extra_tilt = float(rng.uniform(1.0, 4.0))
+    if camera is not None:
+        h_cam, extra_tilt = float(camera.height), float(camera.extra_tilt_deg)
+        roll = np.deg2rad(camera.roll_deg)
     aim = 0.5 * subject.height - 0.05
     org = forward_kinematics(subject, clip.root, clip.rotations)
     kp = keypoints_world(subject, org, clip.rotations)
@@ -156,6 +182,8 @@ def make_scene(rng: np.random.Generator, intrinsics: Intrinsics, subject: Subjec
     fx, fy, cx, cy, W, H = _intr_np(intrinsics)
     while True:
         tilt = max(np.arctan2(h_cam - aim, d), 0.0) + np.deg2rad(extra_tilt)
+        if camera is not None:
+            tilt = float(np.clip(tilt, 0.0, np.deg2rad(camera.max_tilt_deg)))
         R_world_cam = ry(yaw) @ rx(-tilt) @ np.diag([1.0, -1.0, -1.0]) @ rz(roll)
         C = np.array([0.0, h_cam, 0.0])
         Rcw = R_world_cam.T

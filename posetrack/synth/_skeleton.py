@@ -72,6 +72,33 @@ Primitive = Ellipsoid | RoundCone
 
 
 @dataclasses.dataclass(frozen=True)
+class BodyVariation:
+    """Extra per-subject changes on top of :func:`sample_subject`'s own draw (the "wide"
+    variety of ``generate``). The defaults change nothing."""
+
+    girth: float = 1.0
+    """Multiplier on the girth scale: every part radius and the torso's width and depth."""
+    upper_arm: float = 1.0
+    """Multiplier on the upper-arm length (both sides)."""
+    forearm: float = 1.0
+    """Multiplier on the forearm length."""
+    thigh: float = 1.0
+    """Multiplier on the thigh length."""
+    shank: float = 1.0
+    """Multiplier on the shank length."""
+    shoulder_width: float = 1.0
+    """Multiplier on the distance between the shoulder joints."""
+    hip_width: float = 1.0
+    """Multiplier on the distance between the hip joints."""
+    shoulder_drop: float = 0.0
+    """Shoulder joints this far below the neck keypoint (0: level with it), m."""
+    torso_shift: float = 0.0
+    """Pelvis, abdomen and chest surfaces moved this far forward (+z; negative: backward)
+    relative to the skeleton, so the hip and shoulder joints sit deeper or shallower inside
+    the body, m."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Subject:
     """One synthetic person: bone offsets, surface primitives and keypoint definitions.
 
@@ -115,11 +142,17 @@ def _surface_y(r: tuple[float, float, float], x: float, y: float) -> float:
     return r[2] * float(np.sqrt(max(v, 0.0)))
 
 
-def sample_subject(rng: np.random.Generator) -> Subject:
+def sample_subject(rng: np.random.Generator, *,
+                   variation: BodyVariation | None = None) -> Subject:
     """Draw a random adult: height U(1.55, 1.95) m, proportions and girth varied.
 
     Proportions follow Drillis & Contini segment ratios with per-bone jitter (~3.5 %), a
     shoulder/hip "shape" factor and a girth multiplier; head size scales weakly with height.
+
+    Args:
+        rng: randomness (the draws are the same with or without ``variation``).
+        variation: further changes applied to the drawn dimensions (None: none). Recorded in
+            ``dims`` (``variation_*`` entries) when given.
     """
     H = float(rng.uniform(1.55, 1.95))
     build = float(np.clip(rng.normal(1.03, 0.11), 0.85, 1.3))
@@ -146,6 +179,13 @@ def sample_subject(rng: np.random.Generator) -> Subject:
         "hand": 0.108 * H * j(0.05),
         "foot": 0.152 * H * j(0.04),
     }
+    v = variation
+    if v is not None:
+        g *= v.girth
+        for name in ("upper_arm", "forearm", "thigh", "shank"):
+            d[name] *= getattr(v, name)
+        d["shoulder_half_width"] *= v.shoulder_width
+        d["hip_half_width"] *= v.hip_width
     S = len(SEGMENTS)
     off = np.zeros((S, 3))
     off[SEG["abdomen"]] = (0, d["lumbar"], 0)
@@ -154,7 +194,8 @@ def sample_subject(rng: np.random.Generator) -> Subject:
     off[SEG["head"]] = (0, d["neck"], 0.012)
     for side, sx in (("r", -1.0), ("l", 1.0)):
         off[SEG[f"{side}_clavicle"]] = (0, d["neck_base"], -0.015)
-        off[SEG[f"{side}_upper_arm"]] = (sx * d["shoulder_half_width"], 0, 0)
+        off[SEG[f"{side}_upper_arm"]] = (sx * d["shoulder_half_width"],
+                                         -v.shoulder_drop if v is not None else 0, 0)
         off[SEG[f"{side}_forearm"]] = (0, -d["upper_arm"], 0)
         off[SEG[f"{side}_hand"]] = (0, -d["forearm"], 0)
         off[SEG[f"{side}_thigh"]] = (sx * d["hip_half_width"], -d["pelvis_up"], 0)
@@ -164,12 +205,13 @@ def sample_subject(rng: np.random.Generator) -> Subject:
     belly = g * build**0.7  # heavier people grow more in depth at the belly
     hr = (0.077 * gh * j(0.04), 0.113 * gh * j(0.04), 0.097 * gh * j(0.04))
     hc = (0.0, 0.095 * gh, 0.012)
+    dz = v.torso_shift if v is not None else 0.0
     prims: list[Primitive] = [
-        Ellipsoid("pelvis", SEG["pelvis"], (0, -0.02, -0.01),
+        Ellipsoid("pelvis", SEG["pelvis"], (0, -0.02, -0.01 + dz),
                   (0.160 * g * (1 - 0.05 * shape), 0.11 * g**0.5, 0.105 * g), "trousers"),
-        Ellipsoid("abdomen", SEG["abdomen"], (0, 0.065, 0.004 * belly),
+        Ellipsoid("abdomen", SEG["abdomen"], (0, 0.065, 0.004 * belly + dz),
                   (0.140 * g, 0.155, 0.098 * belly), "shirt"),
-        Ellipsoid("chest", SEG["chest"], (0, 0.035, -0.005),
+        Ellipsoid("chest", SEG["chest"], (0, 0.035, -0.005 + dz),
                   (0.156 * g * (1 + 0.05 * shape), 0.155, 0.106 * g), "shirt"),
         RoundCone("neck", SEG["neck"], (0, 0, 0), (0, d["neck"], 0.012),
                   0.058 * g**0.6, 0.050 * g**0.5, "skin"),
@@ -251,6 +293,8 @@ def sample_subject(rng: np.random.Generator) -> Subject:
     dims = dict(d)
     dims["girth_scale"] = g
     dims["shape"] = shape
+    if v is not None:
+        dims.update({f"variation_{k}": float(x) for k, x in dataclasses.asdict(v).items()})
     return Subject(
         height=H, build=build, offsets=off, primitives=tuple(prims), kpt_seg=kseg,
         kpt_local=kloc, kpt_radius=krad, kpt_own=tuple(kown), foot_sole=sole,
