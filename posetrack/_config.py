@@ -38,16 +38,19 @@ PAPER_BEST: dict[str, dict] = {
 
 #: The switches that add this project's changes to the paper's method, and their values in the
 #: paper's method alone (see README "Beyond the paper").
-BEYOND_THE_PAPER: dict[str, bool] = {
+BEYOND_THE_PAPER: dict[str, bool | int] = {
     "surface_offset": False,
     "invalid_is_unknown": False,
     "use_floor": False,
     "temporal_2d": False,
     "reseed": False,
     "consensus_refit": False,
+    "limb_hypotheses": 0,
 }
 
-_POSITIVE = ("sigma_g", "sigma_h", "d_hmax", "d_M", "sharpness", "body_range")
+_POSITIVE = (
+    "sigma_g", "sigma_h", "d_hmax", "d_M", "sharpness", "body_range", "limb_distance",
+)  # fmt: skip
 
 
 class TrackerConfig(eqx.Module):
@@ -134,6 +137,16 @@ class TrackerConfig(eqx.Module):
     consensus_refit: bool = eqx.field(default=True, static=True)
     """Refit the winner on all landmarks within ``consensus_distance`` of it (not in the paper)."""
     consensus_distance: float = 0.12
+    limb_hypotheses: int = eqx.field(default=0, static=True)
+    """S of the N hypotheses restart every frame from the previous output with each limb
+    turned onto this frame's 3D landmarks: as labelled, then with both arms and legs, the
+    arms, the legs exchanged left/right (``posetrack._limbs``; 0 = off, at most 4; LVM has
+    none: :attr:`num_limb_hypotheses`). Delta
+    decides between them and the other hypotheses, so a locked left/right swap or a limb
+    too fast for the fit's few steps can recover. Not in the paper."""
+    limb_distance: float = 0.2
+    """A landmark enters a limb hypothesis' fit if it lies within this of the re-initialised
+    pose (metres). Traced."""
     """Metres (2D: at the keypoint's depth) within which a landmark agrees with the winner.
     Traced."""
     invalid_is_unknown: bool = eqx.field(default=True, static=True)
@@ -198,6 +211,11 @@ class TrackerConfig(eqx.Module):
             v = getattr(self, name)
             if isinstance(v, float) and not (math.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name} must be a positive number, got {v!r}")
+        if not 0 <= self.limb_hypotheses <= 4 or (self.n > 1 and self.limb_hypotheses >= self.n):
+            raise ValueError(
+                f"TrackerConfig.limb_hypotheses must be in 0..4 and smaller than the number of "
+                f"hypotheses ({self.n}), got {self.limb_hypotheses}"
+            )
         if self.score_width < 8 or self.score_height < 8:
             raise ValueError(
                 f"TrackerConfig: score size must be at least 8x8, got "
@@ -208,6 +226,11 @@ class TrackerConfig(eqx.Module):
     def n(self) -> int:
         """Number of hypotheses actually used (1 for LVM)."""
         return 1 if self.method == "lvm" else self.num_hypotheses
+
+    @property
+    def num_limb_hypotheses(self) -> int:
+        """Limb hypotheses actually used (0 for LVM)."""
+        return 0 if self.n == 1 else self.limb_hypotheses
 
     def replace(self, **changes) -> TrackerConfig:
         """A copy with ``changes`` applied (validated like the constructor)."""

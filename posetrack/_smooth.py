@@ -25,7 +25,16 @@ optimistix' dense LM would form a 5,504-column Jacobian. The per-frame Jacobians
 ``jax.jacfwd`` of the same residual function the tracker's fits use.
 
 One jitted call per window (:func:`smooth_window`); ``posetrack.track`` runs it over the
-recording in overlapping windows (offline) and ``Tracker`` with a fixed lag (online).
+recording in overlapping windows (offline).
+
+**Online** (``Tracker(mode="online", lag=L)``, causal) uses a cheaper model: after each frame
+the tracker's keypoints over the last ``online_window`` frames are smoothed by the same
+acceleration prior, but in keypoint space, where the problem is linear
+(:func:`smooth_keypoints`: one small solve per keypoint), and the pose of frame t - L is
+fitted to its smoothed keypoints by a few Gauss-Newton steps (:func:`pose_from_keypoints`).
+One jitted call per frame (:func:`online_update`), the window kept on the device. The
+window-LM of the offline smoother was measured at 2.5x the per-frame step when run every
+frame (12 frames, 4 iterations); this one adds about 15 % (``benchmarks/motion.py``).
 """
 
 from __future__ import annotations
@@ -44,7 +53,6 @@ from ._fit import fit_problem, fit_residuals
 from ._observe import Landmarks
 from ._residuals import ResidualSettings, _sqrt_reweight
 from ._select import consensus_set
-from ._step import TrackState
 
 #: Coefficients of the second difference X_{s+1} - 2 X_s + X_{s-1}, for frames s-1, s, s+1.
 _C = (1.0, -2.0, 1.0)
@@ -79,17 +87,12 @@ class SmoothSettings:
     online_window: int = 12
     """Frames the online mode smooths over at every frame (static): the newest frame and the
     ones before it."""
-    online_iterations: int = 4
-    """Levenberg-Marquardt iterations of the online window (it starts from the previous
-    frame's smoothing, so fewer than offline)."""
-    feedback: bool = False
-    """Online: start the next frame's hypotheses from the predicted pose (and compare the
-    temporal weights against it). Off by default: on the tuning seeds it made the occluded
-    clips worse (box, occlusion 2, seed 102: D 85 mm against 59 without), as a wrong smoothed
-    pose drags every hypothesis with it; see the README."""
-    prediction: float = 1.0
-    """Online with ``feedback``: the next frame's hypotheses start from the newest smoothed
-    pose plus this many times its velocity (0: from the smoothed pose itself)."""
+    online_accel_std: float = 6.0
+    """Online: spread of a keypoint's acceleration the prior expects, m/s^2, weighed against
+    ``landmark_std`` (see :meth:`online_weight`). Chosen on tuning seeds 100-105: 3-9 m/s^2
+    traded D against acceleration error by a few per cent either way."""
+    online_iterations: int = 3
+    """Gauss-Newton steps fitting the pose to the smoothed keypoints (online)."""
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
@@ -104,9 +107,15 @@ class SmoothSettings:
             )
         if self.iterations < 1:
             raise ValueError(f"SmoothSettings.iterations must be >= 1, got {self.iterations}")
-        if self.online_window < 4 or self.online_window % 2:
+        if self.online_window < 4:
+            raise ValueError(f"SmoothSettings.online_window must be >= 4, got {self.online_window}")
+        if not self.online_accel_std > 0:
             raise ValueError(
-                f"SmoothSettings.online_window must be even and >= 4, got {self.online_window}"
+                f"SmoothSettings.online_accel_std must be positive, got {self.online_accel_std}"
+            )
+        if self.online_iterations < 1:
+            raise ValueError(
+                f"SmoothSettings.online_iterations must be >= 1, got {self.online_iterations}"
             )
         if self.window < 4 or self.window % 2:
             raise ValueError(f"SmoothSettings.window must be even and >= 4, got {self.window}")
@@ -114,6 +123,12 @@ class SmoothSettings:
             raise ValueError(
                 f"SmoothSettings.overlap must be in [0, window / 2], got {self.overlap}"
             )
+
+    def online_weight(self, fps: float | Array) -> Array:
+        """The online smoother's prior weight for a frame rate (Hz):
+        ``(landmark_std / (online_accel_std / fps^2))^2`` against data weights in [0, 1]."""
+        per_frame = self.online_accel_std / (jnp.asarray(fps, jnp.float32) ** 2)
+        return (self.landmark_std / per_frame) ** 2
 
     def weight(self, fps: float | Array) -> Array:
         """lambda for a frame rate (Hz)."""
@@ -395,58 +410,146 @@ def smooth_sequence(
 consensus_masks_jit = jax.jit(consensus_masks, static_argnums=4)
 
 
-def _align_quaternions(p: Float[Array, 43], ref: Float[Array, 43]) -> Float[Array, 43]:
-    """``p`` with each quaternion's sign flipped where it points away from ``ref``'s (q and -q
-    are the same rotation; a difference must compare like with like)."""
-    q = p[3:].reshape(-1, 4)
-    r = ref[3:].reshape(-1, 4)
-    sign = jnp.where(jnp.sum(q * r, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-    return jnp.concatenate([p[:3], (q * sign).reshape(-1)])
+class OnlineWindow(eqx.Module):
+    """The online motion model's memory: the newest ``online_window`` frames (oldest first),
+    kept on the device between frames."""
+
+    keypoints: Float[Array, "frame kpt 3"]
+    """The tracker's per-frame keypoints, metres."""
+    confidence: Float[Array, "frame kpt"]
+    """Their weights in the data term (the tracker's per-keypoint confidence)."""
+    params: Float[Array, "frame 43"]
+    """The per-frame poses (the start of the pose fit; quaternions wxyz)."""
+    valid: Bool[Array, " frame"]
+    """Frames that belong to the current track segment."""
+
+    @staticmethod
+    def empty(size: int) -> OnlineWindow:
+        return OnlineWindow(
+            keypoints=jnp.zeros((size, 18, 3), jnp.float32),
+            confidence=jnp.zeros((size, 18), jnp.float32),
+            params=jnp.tile(body.facing_camera_params(2.5, jnp.float32), (size, 1)),
+            valid=jnp.zeros(size, bool),
+        )
+
+    def push(self, keypoints, confidence, params, valid) -> OnlineWindow:
+        """The window with a new newest frame (the oldest dropped)."""
+
+        def roll(buf, x):
+            return jnp.concatenate([buf[1:], jnp.asarray(x, buf.dtype)[None]])
+
+        return OnlineWindow(
+            keypoints=roll(self.keypoints, keypoints),
+            confidence=roll(self.confidence, confidence),
+            params=roll(self.params, params),
+            valid=roll(self.valid, valid),
+        )
 
 
-def online_step(
+#: Smallest data weight of a frame of the track (a frame with nothing observed is carried by
+#: the prior, but the system must stay solvable when a whole window is unobserved).
+_MIN_WEIGHT = 0.02
+
+
+def smooth_keypoints(
+    keypoints: Float[Array, "frame kpt 3"],
+    confidence: Float[Array, "frame kpt"],
+    valid: Bool[Array, " frame"],
+    weight: Float[Array, ""],
+) -> Float[Array, "frame kpt 3"]:
+    """Keypoint trajectories smoothed over a window: per keypoint, the minimiser of
+
+        sum_t c_t |x_t - y_t|^2 + weight * sum_t |x_{t+1} - 2 x_t + x_{t-1}|^2
+
+    (acceleration terms only where all three frames are ``valid``; c = ``confidence``, at
+    least 0.02 on valid frames). A linear problem: one (frame x frame) solve per keypoint,
+    the same matrix for x, y and z. Frames that are not valid come back unchanged.
+    """
+    W = keypoints.shape[0]
+    term, _, _, _ = _acceleration_weights(valid)
+    D = jnp.zeros((W, W), keypoints.dtype)
+    rows = jnp.arange(1, W - 1)
+    D = D.at[rows, rows - 1].set(1.0).at[rows, rows].set(-2.0).at[rows, rows + 1].set(1.0)
+    D = D * term[:, None]
+    prior = weight * (D.T @ D)
+    c = jnp.where(valid[:, None], jnp.maximum(confidence, _MIN_WEIGHT), 1.0)  # (frame, kpt)
+    A = jax.vmap(lambda ck: jnp.diag(ck) + prior, in_axes=1)(c)  # (kpt, frame, frame)
+    b = jnp.swapaxes(c[:, :, None] * keypoints, 0, 1)  # (kpt, frame, 3)
+    x = jnp.swapaxes(jnp.linalg.solve(A, b), 0, 1)
+    return jnp.where(valid[:, None, None], x, keypoints)
+
+
+def pose_from_keypoints(
+    shape: body.BodyShape,
+    start: Float[Array, 43],
+    targets: Float[Array, "kpt 3"],
+    iterations: int,
+) -> Float[Array, 43]:
+    """The pose near ``start`` whose 18 keypoints best match ``targets`` (metres): a few damped
+    Gauss-Newton steps on ``keypoints(p) - targets`` with the fits' unit-quaternion residuals
+    and a weak pull toward ``start`` (it fixes the twist no keypoint sees). Quaternions wxyz."""
+    settings = ResidualSettings()
+
+    def res(p):
+        e = (body.keypoints(shape, p) - targets).reshape(-1)
+        q = p[3:].reshape(-1, 4)
+        unit = settings.unit_weight * (jnp.sum(q * q, axis=-1) - 1.0)
+        return jnp.concatenate([e, unit, 0.01 * (p - start)])
+
+    def step(_, p):
+        r = res(p)
+        J = jax.jacfwd(res)(p)
+        H = J.T @ J
+        H = H + 1e-3 * jnp.diag(jnp.diagonal(H)) + 1e-6 * jnp.eye(43, dtype=p.dtype)
+        return p - jnp.linalg.solve(H, J.T @ r)
+
+    p = jax.lax.fori_loop(0, iterations, step, body.normalize_params(start))
+    p = body.normalize_params(p)
+    return jnp.where(jnp.all(jnp.isfinite(p)), p, start)
+
+
+def online_update(
     settings: SmoothSettings,
     shape: body.BodyShape,
-    intrinsics: Intrinsics,
-    params: Float[Array, "frame 43"],
-    landmarks: Landmarks,
-    valid: Bool[Array, " frame"],
     fps: Float[Array, ""],
-    pose_confidence: Float[Array, "frame kpt"],
-    state: TrackState,
-) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"], TrackState]:
-    """The online motion model after frame t (one jitted call): smooth the last
-    ``online_window`` frames (frame t last) and predict frame t+1.
+    window: OnlineWindow,
+    keypoints: Float[Array, "kpt 3"],
+    confidence: Float[Array, " kpt"],
+    params: Float[Array, 43],
+    valid: Bool[Array, ""],
+    lag: int,
+) -> tuple[OnlineWindow, Float[Array, 43], Float[Array, "kpt 3"]]:
+    """The online motion model after one frame (one jitted call): push the frame, smooth the
+    window's keypoint trajectories (:func:`smooth_keypoints`, weight
+    :meth:`SmoothSettings.online_weight`), and fit the pose of the frame ``lag`` frames back to
+    its smoothed keypoints (:func:`pose_from_keypoints`).
 
     Returns:
-        The smoothed window, its keypoints and the state for frame t+1: every hypothesis
-        moved by the same amount, so that the one at ``state.best`` (frame t's pose) lands
-        on the prediction (the newest smoothed pose plus ``settings.prediction`` times its
-        velocity), its keypoints (the temporal weights' M^h) recomputed, ``best`` the
-        prediction.
+        ``(window, params, keypoints)``: the new window and the smoothed pose of frame
+        ``t - lag`` with its model keypoints (meaningful where that frame is valid).
     """
-    use3d, use2d = consensus_masks(
-        shape, intrinsics, params, landmarks, settings.consensus_distance
+    window = window.push(keypoints, confidence, params, valid)
+    smoothed = smooth_keypoints(
+        window.keypoints, window.confidence, window.valid, settings.online_weight(fps)
     )
-    smoothed = smooth_window(
-        settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps,
-        pose_confidence, settings.online_iterations,
-    )  # fmt: skip
-    last = smoothed[-1]
-    prev = _align_quaternions(smoothed[-2], last)
-    velocity = jnp.where(valid[-2] & valid[-1], last - prev, 0.0)
-    predicted = body.normalize_params(last + settings.prediction * velocity)
-    shift = predicted - _align_quaternions(state.best, predicted)
-    hyps = jax.vmap(lambda h: body.normalize_params(_align_quaternions(h, predicted) + shift))(
-        state.hypotheses
-    )
-    new_state = TrackState(
-        hypotheses=hyps,
-        previous=jax.vmap(lambda h: body.keypoints(shape, h))(hyps),
-        best=predicted,
-        key=state.key,
-    )
-    return smoothed, jax.vmap(lambda p: body.keypoints(shape, p))(smoothed), new_state
+    i = window.keypoints.shape[0] - 1 - lag
+    pose = pose_from_keypoints(shape, window.params[i], smoothed[i], settings.online_iterations)
+    return window, pose, body.keypoints(shape, pose)
 
 
-online_step_jit = eqx.filter_jit(online_step)
+online_update_jit = eqx.filter_jit(online_update)
+
+
+@eqx.filter_jit
+def online_flush(
+    settings: SmoothSettings, shape: body.BodyShape, fps: Float[Array, ""], window: OnlineWindow
+) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
+    """At the end of a recording: the smoothed poses of every frame in the window (the newest
+    ``lag`` frames were never published)."""
+    smoothed = smooth_keypoints(
+        window.keypoints, window.confidence, window.valid, settings.online_weight(fps)
+    )
+    poses = jax.vmap(
+        lambda p, x: pose_from_keypoints(shape, p, x, settings.online_iterations)
+    )(window.params, smoothed)
+    return poses, jax.vmap(lambda p: body.keypoints(shape, p))(poses)

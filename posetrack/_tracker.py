@@ -35,7 +35,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._smooth import SmoothSettings, online_step_jit, smooth_sequence
+from ._smooth import OnlineWindow, SmoothSettings, online_flush, online_update_jit, smooth_sequence
 from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
@@ -339,70 +339,47 @@ class Tracker:
         self._reset_motion()
 
     def _reset_motion(self) -> None:
-        """Empty the online motion model's window (a new track segment starts)."""
-        W = self.motion.online_window
-        self._buf_params = np.tile(np.asarray(body.facing_camera_params(2.5), np.float32), (W, 1))
-        self._buf_lm = Landmarks(
-            keypoints2d=np.zeros((W, 18, 2), np.float32),
-            confidence=np.zeros((W, 18), np.float32),
-            points3d=np.zeros((W, 18, 3), np.float32),
-            detected=np.zeros((W, 18), bool),
-            has_depth=np.zeros((W, 18), bool),
-        )
-        self._buf_conf = np.zeros((W, 18), np.float32)
-        self._buf_valid = np.zeros(W, bool)
-        self._buf_frame = np.full(W, -1, np.int64)
+        """Empty the online motion model's window (a new recording starts)."""
+        self._window = OnlineWindow.empty(self.motion.online_window)
+        self._window_frames = np.full(self.motion.online_window, -1, np.int64)
+        self._window_valid = np.zeros(self.motion.online_window, bool)
         self._frames_seen = 0
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
         frames before the newest, smoothed (``None`` until there is one)."""
-        self._last_window: tuple | None = None
 
-    def _push_motion(self, params, lm: Landmarks | None, conf, valid: bool) -> None:
-        """Append the newest frame to the online window (dropping the oldest)."""
-        self._buf_params = np.roll(self._buf_params, -1, axis=0)
-        self._buf_params[-1] = params
-        if lm is None:
-            new = jax.tree.map(lambda x: np.zeros_like(x[-1]), self._buf_lm)
+    def _online(self, est: FrameEstimate | None, conf: np.ndarray):
+        """The online motion model after a frame: push it into the window, smooth, publish
+        the lagged output (:attr:`lagged`). Returns the smoothed ``(params, keypoints)`` of
+        frame ``t - lag`` (``None`` if that frame has no pose)."""
+        if self._state is None:  # no track: the frame takes part in no smoothing
+            kps, params, valid = np.zeros((18, 3)), self._window.params[-1], False
+        elif est is None:  # held: the pose continues, nothing observed
+            kps = np.asarray(body.keypoints(self.shape, self._state.best))
+            params, valid, conf = self._state.best, True, np.zeros(18)
         else:
-            new = jax.tree.map(np.asarray, lm)
-        self._buf_lm = jax.tree.map(
-            lambda b, x: np.concatenate([b[1:], np.asarray(x, b.dtype)[None]]), self._buf_lm, new
-        )
-        self._buf_conf = np.roll(self._buf_conf, -1, axis=0)
-        self._buf_conf[-1] = conf
-        self._buf_valid = np.roll(self._buf_valid, -1)
-        self._buf_valid[-1] = valid
-        self._buf_frame = np.roll(self._buf_frame, -1)
-        self._buf_frame[-1] = self._frames_seen - 1
-
-    def _online(self, est: FrameEstimate | None, conf: np.ndarray, update_state: bool):
-        """The online motion model after a frame: smooth the window, predict the next frame,
-        publish the lagged output (:attr:`lagged`). Returns the smoothed pose of the newest
-        frame (``None`` if it has none)."""
-        if self._state is None:
-            self._push_motion(self._buf_params[-1], None, np.zeros(18), False)
-            self.lagged = None
-            return None
-        if est is None:  # held: the pose continues, nothing observed
-            self._push_motion(np.asarray(self._state.best), None, np.zeros(18), True)
-        else:
-            self._push_motion(np.asarray(est.params), est.landmarks, conf, True)
+            kps, params, valid = est.keypoints3d, est.params, True
         t0 = time.perf_counter()
-        smoothed, kps, new_state = online_step_jit(
-            self.motion, self.shape, self.intrinsics, jnp.asarray(self._buf_params),
-            jax.tree.map(jnp.asarray, self._buf_lm), jnp.asarray(self._buf_valid),
-            jnp.asarray(self.fps, _DTYPE), jnp.asarray(self._buf_conf), self._state,
+        self._window, pose, pose_kps = online_update_jit(
+            self.motion, self.shape, jnp.asarray(self.fps, _DTYPE), self._window,
+            jnp.asarray(kps, _DTYPE), jnp.asarray(conf, _DTYPE), jnp.asarray(params, _DTYPE),
+            jnp.asarray(valid), self.lag,
         )  # fmt: skip
-        smoothed, kps = np.asarray(smoothed), np.asarray(kps)
+        self._window_frames = np.roll(self._window_frames, -1)
+        self._window_frames[-1] = self._frames_seen - 1
+        i = self.motion.online_window - 1 - self.lag
+        frame = int(self._window_frames[i])
+        # The host mirrors the window's frame numbers and validity (no device round trip).
+        self._window_valid = np.roll(self._window_valid, -1)
+        self._window_valid[-1] = valid
+        if frame < 0 or not self._window_valid[i]:
+            self.lagged = None
+            self._motion_times.append(time.perf_counter() - t0)
+            return None
+        pose, pose_kps = np.asarray(pose), np.asarray(pose_kps)
         self._motion_times.append(time.perf_counter() - t0)
-        if update_state and self.motion.feedback:
-            self._state = new_state
-        W = self.motion.online_window
-        i = W - 1 - self.lag
-        self.lagged = (int(self._buf_frame[i]), smoothed[i], kps[i]) if self._buf_valid[i] else None
-        self._last_window = (self._buf_frame.copy(), self._buf_valid.copy(), smoothed, kps)
-        return smoothed[-1], kps[-1]
+        self.lagged = (frame, pose, pose_kps)
+        return pose, pose_kps
 
     def _forget_person(self) -> None:
         # Identity of the followed person: survives a track loss, not a reset().
@@ -447,7 +424,9 @@ class Tracker:
         """Forget the hypotheses after a loss; keep who is followed."""
         self._state = None
         self._lost_run = 0
-        self._buf_valid[:] = False
+        # The next segment starts afresh: no smoothing across the re-initialisation.
+        self._window = eqx.tree_at(lambda w: w.valid, self._window, jnp.zeros_like(self._window.valid))
+        self._window_valid[:] = False
 
     @property
     def person(self) -> int:
@@ -565,8 +544,7 @@ class Tracker:
         In ``mode="online"`` the motion model runs after the step: with ``lag=0`` the
         estimate's ``params`` and ``keypoints3d`` are the smoothed pose of this frame; with
         ``lag=L`` they are this frame's per-frame pose and :attr:`lagged` holds the smoothed
-        pose of the frame L frames back. With ``motion.feedback`` (off by default) the next
-        frame's hypotheses start from the predicted pose.
+        pose of the frame L frames back.
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
@@ -579,7 +557,7 @@ class Tracker:
             return est, st
         observed = est is not None and st != NO_OBSERVATION
         conf = keypoint_confidence(est) * (0.5 if st == LOST else 1.0) if observed else np.zeros(18)
-        newest = self._online(est if observed else None, conf, update_state=observed)
+        newest = self._online(est if observed else None, conf)
         if newest is not None and observed and self.lag == 0:
             p, k = newest
             est = eqx.tree_at(
@@ -710,11 +688,15 @@ class Tracker:
             delta[t] = float(est.delta)
             conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
         per_frame = None
-        if self.mode == "online" and self.lag > 0 and self._last_window is not None:
-            # The newest frames' smoothed poses were never lagged out: take the last window's.
-            frames, ok, sm, sk = self._last_window
-            for j in np.flatnonzero(ok & (frames > T - 1 - self.lag)):
-                params[frames[j]], kp3[frames[j]] = sm[j], sk[j]
+        if self.mode == "online" and self.lag > 0:
+            # The newest frames' smoothed poses were never lagged out: smooth the last window.
+            sm, sk = online_flush(
+                self.motion, self.shape, jnp.asarray(self.fps, _DTYPE), self._window
+            )
+            sm, sk = np.asarray(sm), np.asarray(sk)
+            newest = (self._window_frames > T - 1 - self.lag) & self._window_valid
+            for j in np.flatnonzero(newest):
+                params[self._window_frames[j]], kp3[self._window_frames[j]] = sm[j], sk[j]
         if self.mode == "offline":
             valid = np.isfinite(kp3).all(axis=(1, 2))
             if valid.any():

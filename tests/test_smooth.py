@@ -142,6 +142,52 @@ def test_settings_reject_bad_values():
         pt.SmoothSettings(accel_std=0.0)
     with pytest.raises(ValueError, match="window"):
         pt.SmoothSettings(window=7)
+    with pytest.raises(ValueError, match="online_accel_std"):
+        pt.SmoothSettings(online_accel_std=-1.0)
+    with pytest.raises(ValueError, match="online_iterations"):
+        pt.SmoothSettings(online_iterations=0)
+
+
+def test_keypoint_smoother_removes_noise_and_keeps_a_straight_line():
+    rng = np.random.default_rng(3)
+    T = 12
+    line = np.linspace(0.0, 0.3, T)[:, None, None] * np.ones((1, 18, 3)) + [0.0, 0.0, 2.5]
+    conf = jnp.full((T, 18), 0.8, jnp.float32)
+    valid = jnp.ones(T, bool)
+    w = pt.SmoothSettings().online_weight(30.0)
+    # A straight line has no acceleration: the prior leaves it where it is.
+    out = _smooth.smooth_keypoints(jnp.asarray(line, jnp.float32), conf, valid, w)
+    np.testing.assert_allclose(np.asarray(out), line, atol=1e-4)
+    noisy = line + rng.normal(scale=0.02, size=line.shape)
+    out = np.asarray(_smooth.smooth_keypoints(jnp.asarray(noisy, jnp.float32), conf, valid, w))
+    assert np.abs(out - line).mean() < 0.6 * np.abs(noisy - line).mean()
+    # Frames outside the track come back unchanged and do not pull the others.
+    valid = valid.at[:3].set(False)
+    moved = noisy.copy()
+    moved[:3] += 1.0
+    a = np.asarray(_smooth.smooth_keypoints(jnp.asarray(moved, jnp.float32), conf, valid, w))
+    b = np.asarray(_smooth.smooth_keypoints(jnp.asarray(noisy, jnp.float32), conf, valid, w))
+    np.testing.assert_array_equal(a[:3], moved[:3].astype(np.float32))
+    np.testing.assert_allclose(a[3:], b[3:], atol=1e-5)
+
+
+def test_pose_from_keypoints_recovers_a_pose_from_its_keypoints(noisy_motion):
+    shape, _, truth, kp_true, est, _ = noisy_motion
+    fit = jax.jit(_smooth.pose_from_keypoints, static_argnums=3)
+    p = fit(shape, jnp.asarray(est[7]), jnp.asarray(kp_true[7]), 3)
+    err = np.linalg.norm(np.asarray(pt.keypoints(shape, p)) - kp_true[7], axis=-1).max()
+    start_err = np.linalg.norm(
+        np.asarray(pt.keypoints(shape, jnp.asarray(est[7]))) - kp_true[7], axis=-1
+    ).max()
+    assert err < 2e-3 < start_err
+
+
+def test_online_window_push_keeps_the_newest_frames_last():
+    win = _smooth.OnlineWindow.empty(4)
+    for i in range(6):
+        win = win.push(jnp.full((18, 3), float(i)), jnp.ones(18), jnp.zeros(43), i % 2 == 0)
+    np.testing.assert_array_equal(np.asarray(win.keypoints[:, 0, 0]), [2.0, 3.0, 4.0, 5.0])
+    np.testing.assert_array_equal(np.asarray(win.valid), [True, False, True, False])
 
 
 # -- the tracker's modes ----------------------------------------------------------------------
@@ -159,6 +205,7 @@ def modes(clip):
         "per-frame": pt.track(*args, mode="per-frame"),
         "offline": pt.track(*args),
         "online": pt.track(*args, mode="online", lag=2),
+        "online0": pt.track(*args, mode="online", lag=0),
     }
 
 
@@ -179,6 +226,17 @@ def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(modes):
     have = np.isfinite(per.keypoints3d).all(axis=(1, 2))
     assert np.isfinite(on.keypoints3d[have]).all()
     assert np.abs(on.keypoints3d[have] - per.keypoints3d[have]).max() > 1e-3
+
+
+def test_online_moves_more_smoothly_than_per_frame(clip, modes):
+    gt = clip.joints3d
+    per = pt.acceleration_error(modes["per-frame"].keypoints3d, gt)
+    for name in ("online", "online0"):
+        acc = pt.acceleration_error(modes[name].keypoints3d, gt)
+        assert acc < 0.7 * per, (name, acc, per)
+        # Smoothing may cost a causal filter a little accuracy, never much.
+        D = pt.accuracy(modes[name].keypoints3d, gt).mean_mm
+        assert D < 1.15 * pt.accuracy(modes["per-frame"].keypoints3d, gt).mean_mm + 5.0
 
 
 def test_tracker_rejects_bad_motion_arguments(clip):
