@@ -68,6 +68,8 @@ from ._render import render_depth_batch as render_depth_batch
 from ._residuals import ResidualSettings as ResidualSettings
 from ._score import delta as delta
 from ._score import delta_batch as delta_batch
+from ._shapefit import ShapeFitSettings as ShapeFitSettings
+from ._shapefit import refine_shape as refine_shape
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate
@@ -99,6 +101,8 @@ __all__ = [
     # fitting (Eq. (1))
     "FitResult", "FitSettings", "ResidualSettings", "estimate_shape", "fit_hypotheses",
     "fit_pose", "initial_pose", "refine_pose",
+    # body shape from depth
+    "ShapeFitSettings", "refine_shape",
     # rendering and scoring (Eq. (3))
     "Capsules", "delta", "delta_batch", "render_and_score", "render_depth", "render_depth_batch",
     # the tracker

@@ -1,0 +1,500 @@
+"""Body shape from depth: fit the body dimensions through the soft rasteriser's gradients.
+
+:func:`~posetrack.estimate_shape` measures bone lengths between lifted landmarks; it cannot
+see the part radii, and it cannot see where a joint sits inside the body. Here the shape is
+refined against the dense depth of a few frames: the log-scale factors ``u`` of the
+:class:`~posetrack.BodyShape` fields (``shape_k = base_k * exp(u_k)``; ``shoulder_drop``, which
+may be zero or negative, is additive: ``base + SHOULDER_DROP_UNIT * u``) and, jointly, the F
+poses (a pose fitted with the wrong shape compensates for it; holding the poses fixed would
+ask the shape to explain the poses' errors) minimise
+
+    mean_f [ delta_weight * Delta_f + landmark_weight * |r_f|^2 ] + prior_weight * |u / sigma|^2
+
+with ``Delta_f`` the soft Delta of Eq. (3) of the paper (the capsules rendered with a finite
+sharpness, ``cull=False`` so reverse mode works), ``r_f`` the landmark residuals of Eq. (1)
+(each 3D landmark pushed behind the surface by the *current* shape's local radius, so a
+radius change moves the joints it implies), and a Gaussian prior pulling ``u`` to 0, i.e.
+toward the landmark-based estimate, so fields the data does not see stay put.
+
+The optimiser is Adam written by hand (no new dependency), a fixed number of steps in one
+``lax.scan``: one jitted program, every frame rendered at once (``vmap``) at each step.
+Why first order: the depth term is one scalar per frame, so a Gauss-Newton model of it (as in
+``_refine``) has rank one per frame; its curvature across 15 shape fields would come from the
+damping alone. Adam's per-coordinate step also makes the mixed units (metres, quaternion
+components, log-scales) a non-issue. Quaternions (wxyz) are renormalised after each step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ._body import BodyShape, capsules, normalize_params
+from ._camera import Intrinsics
+from ._config import TrackerConfig
+from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_observation
+from ._geometry import surface_offsets
+from ._observe import Landmarks, lift_keypoints
+from ._render import DEFAULT_SHARPNESS, Capsules, capsule_fields, capsule_params, soft_terms
+from ._residuals import ResidualSettings, landmark_residuals, pixel_scale
+from ._score import DEFAULT_D_M, delta_from_sums, delta_sums
+
+#: Every BodyShape field, in declaration order.
+SHAPE_FIELDS = tuple(f.name for f in dataclasses.fields(BodyShape))
+
+SHOULDER_DROP_UNIT = 0.1
+"""Metres of ``shoulder_drop`` per unit of its (additive) factor: with ``prior_sigma`` 0.1 the
+prior's standard deviation is 1 cm."""
+
+_DTYPE = jnp.float32
+
+
+@dataclasses.dataclass(frozen=True)
+class ShapeFitSettings:
+    """Settings of :func:`refine_shape`. Hashable (a static argument under jit: changing one
+    compiles a new program)."""
+
+    fields: tuple[str, ...] = SHAPE_FIELDS
+    """The shape fields refined; the others keep their input values."""
+    fit_poses: bool = True
+    """Refine the F poses jointly with the shape (else they stay as given)."""
+    steps: int = 150
+    """Adam steps."""
+    shape_lr: float = 0.01
+    """Adam step of the log-scale factors (0.01: 1 % per step at most)."""
+    pose_lr: float = 0.002
+    """Adam step of the pose parameters (metres and quaternion components)."""
+    delta_weight: float = 3.0
+    """Weight of Delta (per frame, in [0, 1]). 3 against 1 and against a 10x weaker prior on
+    6 tuning clips (``benchmarks/shape.py --tune``): D 37.6 / 39.3 / 39.3 mm, better than the
+    landmark-based shape on 6 / 4 / 5 clips."""
+    landmark_weight: float = 1.0
+    """Weight of the landmark term (sum of squared residuals of one frame, metres^2 for the
+    ``"l2"`` loss, ~metres for ``"l1"``)."""
+    prior_weight: float = 0.01
+    """Weight of ``|u / prior_sigma|^2`` (summed over the refined fields)."""
+    prior_sigma: float = 0.1
+    """Standard deviation of each log-scale factor around the input shape (0.1: 10 %)."""
+    max_change: float = 0.4
+    """Log-scale factors are clipped to [-max_change, max_change] (0.4: x0.67 to x1.5)."""
+    width: int = 160
+    """Width of the depth maps rendered (the sensor's depth is downsampled to it)."""
+    height: int = 120
+    """Height of the depth maps rendered."""
+    sharpness: float = DEFAULT_SHARPNESS
+    """Soft rasteriser sharpness, 1/metre."""
+    d_M: float = DEFAULT_D_M
+    """Depth clamp of Eq. (3), metres."""
+    loss: str = "l1"
+    """Landmark loss: "l1" (the paper's sum of norms, robust to detector outliers) or "l2"."""
+
+    def __post_init__(self):
+        unknown = [f for f in self.fields if f not in SHAPE_FIELDS]
+        if unknown or not self.fields or len(set(self.fields)) != len(self.fields):
+            raise ValueError(
+                f"ShapeFitSettings.fields must be distinct BodyShape fields, got {self.fields!r}"
+            )
+        if self.steps < 1:
+            raise ValueError(f"ShapeFitSettings.steps must be >= 1, got {self.steps}")
+        for name in (
+            "shape_lr", "pose_lr", "prior_sigma", "max_change", "sharpness", "d_M",
+        ):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"ShapeFitSettings.{name} must be positive, got {v!r}")
+        for name in ("delta_weight", "landmark_weight", "prior_weight"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"ShapeFitSettings.{name} must be >= 0, got {v!r}")
+        if self.width < 8 or self.height < 8:
+            raise ValueError(
+                f"ShapeFitSettings: width x height must be at least 8x8, got "
+                f"{self.width}x{self.height}"
+            )
+        if self.loss not in ("l1", "l2"):
+            raise ValueError(f"ShapeFitSettings.loss must be 'l1' or 'l2', got {self.loss!r}")
+
+
+def apply_factors(
+    base: BodyShape, u: Float[Array, " field"], fields: tuple[str, ...]
+) -> BodyShape:
+    """``base`` with each of ``fields`` scaled by ``exp(u)`` (``shoulder_drop``: plus
+    ``SHOULDER_DROP_UNIT * u`` metres). Differentiable in ``u``."""
+    values = {f: getattr(base, f) for f in SHAPE_FIELDS}
+    for k, f in enumerate(fields):
+        if f == "shoulder_drop":
+            values[f] = values[f] + SHOULDER_DROP_UNIT * u[k]
+        else:
+            values[f] = values[f] * jnp.exp(u[k])
+    return BodyShape(**values)
+
+
+class _Frames(eqx.Module):
+    """What the objective sees of the F frames (leading axis ``frame``). The maps are cropped
+    to a window around the body (the same static size for every frame)."""
+
+    z_d: Float[Array, "frame h w"]
+    """Observed depth in the window, metres (0 off the foreground)."""
+    z_fg: Float[Array, "frame h w"]
+    """Observed foreground in the window (0./1.)."""
+    known: Float[Array, "frame h w"]
+    """1 where the sensor measured depth (``invalid_is_unknown``), else all ones."""
+    fg_outside: Float[Array, " frame"]
+    """Observed foreground outside the window (it enters |P_u| in full)."""
+    ray_x: Float[Array, "frame 1 w"]
+    """x component (z = 1) of the window's pixel rays."""
+    ray_y: Float[Array, "frame h 1"]
+    """y component (z = 1) of the window's pixel rays."""
+    landmarks: Landmarks
+    """Lifted landmarks with NO surface offset (points on the surface), per frame."""
+    rays: Float[Array, "frame kpt 3"]
+    """Unit viewing ray of each landmark (the surface offset is added along it)."""
+    mpp: Float[Array, "frame kpt"]
+    """Metres per pixel of the 2D residuals (at the start pose)."""
+
+
+def soft_delta(
+    caps: Capsules,
+    ray_x: Float[Array, "1 w"],
+    ray_y: Float[Array, "h 1"],
+    z_d: Float[Array, "h w"],
+    z_fg: Float[Array, "h w"],
+    known: Float[Array, "h w"],
+    fg_outside: Float[Array, ""],
+    *,
+    sharpness: float,
+    d_M: float,
+) -> Float[Array, ""]:
+    """Soft Delta (Eq. (3) of the paper) of one body on a window of pixel rays.
+
+    The same soft union and push-back soft-min as :func:`~posetrack.render_depth` (built from
+    its public pieces ``capsule_fields`` and ``soft_terms``), but with every capsule evaluated at
+    once instead of a scan over capsules: reverse mode then stores one (capsule, h, w) tape
+    instead of one per scan step, and the window keeps it small. ``render_and_score`` with
+    ``cull=False`` on the full image gives the same value (``tests/test_shapefit.py``) when the
+    rendering has no coverage outside the window.
+    """
+    p = {k: v[:, None, None] for k, v in capsule_params(caps).items()}
+    delta, z = capsule_fields(ray_x[None], ray_y[None], p)  # (P, h, w)
+    lnc, score = soft_terms(delta, z, jnp.asarray(sharpness, delta.dtype))
+    r_fg = -jnp.expm1(jnp.sum(lnc, axis=0)) * known
+    r_d = jnp.sum(jax.nn.softmax(score, axis=0) * z, axis=0)
+    matched, union = delta_sums(z_d, z_fg, r_d, r_fg, d_M)
+    return delta_from_sums(matched, union + fg_outside)
+
+
+def _frame_loss(shape, params, frames_f: _Frames, intrinsics, settings, res_settings):
+    """(Delta, landmark term) of one frame for ``shape`` and ``params``."""
+    a, b, r = capsules(shape, params)
+    delta = soft_delta(
+        Capsules(a=a, b=b, radius=r), frames_f.ray_x, frames_f.ray_y, frames_f.z_d,
+        frames_f.z_fg, frames_f.known, frames_f.fg_outside,
+        sharpness=settings.sharpness, d_M=settings.d_M,
+    )  # fmt: skip
+    lm = frames_f.landmarks
+    # The sensor sees the surface; the joint lies one local radius behind it, and that radius
+    # is being fitted: the 3D landmark moves with it (``TrackerConfig.surface_offset``).
+    offset = surface_offsets(shape)
+    points = jnp.where(
+        lm.has_depth[:, None], lm.points3d + offset[:, None] * frames_f.rays, 0.0
+    )
+    use3d = lm.has_depth
+    use2d = lm.detected & ~use3d
+    e = landmark_residuals(
+        params, shape, eqx.tree_at(lambda x: x.points3d, lm, points), intrinsics, use3d=use3d, use2d=use2d, metres_per_pixel=frames_f.mpp,
+        settings=res_settings,
+    )  # fmt: skip
+    return delta, jnp.sum(e * e)
+
+
+def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
+    res_settings = ResidualSettings(loss=settings.loss)
+    shape = apply_factors(base, u, settings.fields)
+    deltas, lms = jax.vmap(
+        lambda p, fr: _frame_loss(shape, p, fr, intrinsics, settings, res_settings)
+    )(poses, frames)
+    data = jnp.mean(settings.delta_weight * deltas + settings.landmark_weight * lms)
+    prior = settings.prior_weight * jnp.sum((u / settings.prior_sigma) ** 2)
+    return data + prior, (jnp.mean(deltas), jnp.mean(lms))
+
+
+@functools.partial(jax.jit, static_argnames=("settings",))
+def refine_shape_core(
+    base: BodyShape,
+    poses: Float[Array, "frame 43"],
+    frames: _Frames,
+    intrinsics: Intrinsics,
+    *,
+    settings: ShapeFitSettings,
+):
+    """The jitted refinement: Adam on ``(u, poses)`` for ``settings.steps`` steps.
+
+    Returns:
+        ``(u, poses, history)``: the log-scale factors (``field``, in ``settings.fields``
+        order), the refined poses (quaternions wxyz, unit) and the per-step
+        ``(loss, mean Delta, mean landmark term)`` (``step 3``).
+    """
+    n = len(settings.fields)
+    u0 = jnp.zeros((n,), _DTYPE)
+    poses0 = normalize_params(poses.astype(_DTYPE))
+    grad_fn = jax.value_and_grad(_objective, argnums=(0, 1), has_aux=True)
+    b1, b2, eps = 0.9, 0.999, 1e-8
+    lr_scale = jnp.asarray(
+        [settings.shape_lr, settings.pose_lr if settings.fit_poses else 0.0], _DTYPE
+    )
+    zeros = (u0, jnp.zeros_like(poses0))
+
+    def step(carry, i):
+        x, m, v = carry
+        (loss, (d, lm)), g = grad_fn(x[0], x[1], base, frames, intrinsics, settings)
+        # A non-finite gradient (never seen; a guard, not a feature) skips the update.
+        g = jax.tree.map(lambda t: jnp.where(jnp.isfinite(t), t, 0.0), g)
+        m = jax.tree.map(lambda a, b: b1 * a + (1 - b1) * b, m, g)
+        v = jax.tree.map(lambda a, b: b2 * a + (1 - b2) * b * b, v, g)
+        t = (i + 1).astype(_DTYPE)
+        # Cosine decay to 5 % of the step: Adam's steps do not shrink near the optimum by
+        # themselves; the decay lets the last steps settle instead of oscillating.
+        decay = 0.05 + 0.95 * 0.5 * (1 + jnp.cos(jnp.pi * t / settings.steps))
+        upd = jax.tree.map(
+            lambda mm, vv: (mm / (1 - b1**t)) / (jnp.sqrt(vv / (1 - b2**t)) + eps), m, v
+        )
+        u = jnp.clip(x[0] - decay * lr_scale[0] * upd[0], -settings.max_change, settings.max_change)
+        p = normalize_params(x[1] - decay * lr_scale[1] * upd[1])
+        return ((u, p), m, v), jnp.stack([loss, d, lm])
+
+    (x, _, _), history = jax.lax.scan(
+        step, ((u0, poses0), zeros, zeros), jnp.arange(settings.steps)
+    )
+    final, (d, lm) = _objective(x[0], x[1], base, frames, intrinsics, settings)
+    history = jnp.concatenate([history, jnp.stack([final, d, lm])[None]])
+    return x[0], x[1], history
+
+
+@jax.jit
+def _observe_frames(config: TrackerConfig, intrinsics, floor, shape, poses, depths, kp2d, conf):
+    """Full-size observation maps, surface landmarks, their rays and the 2D residuals' scale,
+    and each frame's posed capsules, of every frame (``vmap`` over ``frame``)."""
+
+    def one(p, d, k, c):
+        z_d, z_fg, known, _ = tracker_observation(config, d, intrinsics, floor, p[:3])
+        lm = lift_keypoints(
+            d, k, c, intrinsics, window=config.lift_window,
+            confidence_threshold=config.confidence_threshold,
+        )  # fmt: skip
+        norm = jnp.linalg.norm(lm.points3d, axis=-1, keepdims=True)
+        rays = lm.points3d / jnp.where(norm > 0, norm, 1.0)
+        known = jnp.ones_like(z_d) if known is None else known
+        return z_d, z_fg, known, lm, rays, pixel_scale(p, shape, intrinsics), capsules(shape, p)
+
+    return jax.vmap(one)(poses, depths, kp2d, conf)
+
+
+def _windows(z_fg, caps, small_intr: Intrinsics, margin: int, step: int):
+    """Origins (frame, 2: row, col) and the common size (h, w) of windows holding each
+    frame's observed foreground and its rendered capsules (grown by their radius and 25 %, a
+    shape may grow) plus ``margin`` pixels; the size is rounded up to ``step`` so clips of
+    similar size share one compiled program."""
+    a, b, r = (np.asarray(x, np.float64) for x in caps)
+    K = np.asarray(small_intr.as_matrix(), np.float64)
+    H, W = small_intr.height, small_intr.width
+    boxes = []
+    for f in range(len(a)):
+        pts = np.concatenate([a[f], b[f]])
+        rad = np.concatenate([r[f], r[f]]) * 1.25
+        z = np.maximum(pts[:, 2], 0.2)
+        u = K[0, 0] * pts[:, 0] / z + K[0, 2]
+        v = K[1, 1] * pts[:, 1] / z + K[1, 2]
+        ru, rv = K[0, 0] * rad / z, K[1, 1] * rad / z
+        lo = [np.min(v - rv), np.min(u - ru)]
+        hi = [np.max(v + rv), np.max(u + ru)]
+        rows, cols = np.nonzero(np.asarray(z_fg[f]) > 0)
+        if len(rows):
+            lo = [min(lo[0], rows.min()), min(lo[1], cols.min())]
+            hi = [max(hi[0], rows.max()), max(hi[1], cols.max())]
+        boxes.append((*lo, *hi))
+    boxes = np.asarray(boxes)
+    size_h = min(H, -(-int(np.ceil(np.max(boxes[:, 2] - boxes[:, 0])) + 1 + 2 * margin) // step) * step)
+    size_w = min(W, -(-int(np.ceil(np.max(boxes[:, 3] - boxes[:, 1])) + 1 + 2 * margin) // step) * step)
+    centre = 0.5 * (boxes[:, :2] + boxes[:, 2:])
+    r0 = np.clip(np.round(centre[:, 0] - size_h / 2), 0, H - size_h).astype(int)
+    c0 = np.clip(np.round(centre[:, 1] - size_w / 2), 0, W - size_w).astype(int)
+    return np.stack([r0, c0], axis=1), (size_h, size_w)
+
+
+def _floor_for(depth_m: np.ndarray, intrinsics: Intrinsics, params: np.ndarray):
+    """The tracker's floor rule (``Tracker._fit_floor``): a RANSAC plane the root stands
+    0.3-1.6 m above, else none."""
+    try:
+        normal, offset = fit_floor_plane(depth_m, intrinsics)
+    except ValueError:
+        return NO_FLOOR
+    if not 0.3 <= float(np.dot(normal, params[:3]) + offset) <= 1.6:
+        return NO_FLOOR
+    return (*[float(v) for v in normal], float(offset))
+
+
+def refine_shape(
+    shape: BodyShape,
+    params,
+    depths,
+    keypoints2d,
+    confidence,
+    intrinsics: Intrinsics,
+    *,
+    settings: ShapeFitSettings = ShapeFitSettings(),
+    config: TrackerConfig | None = None,
+    floor="auto",
+    depth_scale: float = 1000.0,
+) -> tuple[BodyShape, dict]:
+    """Refine body dimensions (and the given poses) against the depth of F frames.
+
+    See the module docstring for the objective. Typical use: track the first frames with the
+    landmark-based shape, take 8-15 tracked frames with varied poses, refine, and track again
+    with ``shape=refined``.
+
+    Args:
+        shape: the starting shape (the prior's centre), e.g. ``TrackResult.shape``.
+        params: (F, 43) poses of the F frames fitted with ``shape`` (quaternions wxyz).
+        depths: (F, H, W) depth, uint16 sensor units (``depth_scale`` per metre) or float
+            metres; 0 / NaN invalid.
+        keypoints2d: (F, 18, 2) detected COCO-18 keypoints of the person, pixels.
+        confidence: (F, 18) detector confidence (0 = not detected).
+        intrinsics: the depth camera (size H x W).
+        settings: the optimiser and objective (:class:`ShapeFitSettings`).
+        config: the tracker configuration whose observation preprocessing and lifting are used
+            (``TrackerConfig()`` by default).
+        floor: ``"auto"`` (fit on the first frame with the tracker's rule), ``None`` (no floor
+            removal) or ``(nx, ny, nz, d)``.
+        depth_scale: sensor units per metre of uint16 depth.
+
+    Returns:
+        ``(refined, report)``: the refined :class:`BodyShape` (float32), and a dict with
+        ``factors`` (field -> refined / input; ``shoulder_drop``: metres added), ``before``
+        and ``after`` (mean Delta, mean landmark term, loss), ``params`` ((F, 43) refined poses,
+        NumPy), ``history`` ((steps + 1, 3): loss, Delta, landmark term) and ``seconds``.
+
+    Raises:
+        ValueError: naming the argument, for inconsistent shapes or non-finite values.
+    """
+    if not isinstance(shape, BodyShape):
+        raise ValueError(f"refine_shape: shape must be a posetrack.BodyShape, got {type(shape)}")
+    if not isinstance(intrinsics, Intrinsics):
+        raise ValueError(
+            f"refine_shape: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
+        )
+    if not isinstance(settings, ShapeFitSettings):
+        raise ValueError(
+            f"refine_shape: settings must be a ShapeFitSettings, got {type(settings)}"
+        )
+    config = config or TrackerConfig()
+    if not isinstance(config, TrackerConfig):
+        raise ValueError(f"refine_shape: config must be a TrackerConfig, got {type(config)}")
+    vals = shape.to_dict()
+    if not all(np.isfinite(list(vals.values()))):
+        raise ValueError(f"refine_shape: shape has non-finite fields: {vals}")
+    P = np.asarray(params, dtype=np.float64)
+    if P.ndim != 2 or P.shape[1] != 43 or P.shape[0] < 1:
+        raise ValueError(f"refine_shape: params must have shape (F, 43), got {P.shape}")
+    if not np.all(np.isfinite(P)):
+        raise ValueError("refine_shape: params contain non-finite values")
+    F = P.shape[0]
+    D = np.asarray(depths)
+    H, W = intrinsics.shape
+    if D.shape != (F, H, W):
+        raise ValueError(
+            f"refine_shape: depths must have shape (F, H, W) = {(F, H, W)} (F from params, "
+            f"H x W from intrinsics), got {D.shape}"
+        )
+    if D.dtype == np.uint16:
+        D = D.astype(np.float32) / np.float32(depth_scale)
+    elif np.issubdtype(D.dtype, np.floating):
+        D = D.astype(np.float32)
+    else:
+        raise ValueError(f"refine_shape: depths must be uint16 or float, got {D.dtype}")
+    K = np.asarray(keypoints2d, dtype=np.float32)
+    C = np.asarray(confidence, dtype=np.float32)
+    if K.shape != (F, 18, 2):
+        raise ValueError(f"refine_shape: keypoints2d must have shape {(F, 18, 2)}, got {K.shape}")
+    if C.shape != (F, 18):
+        raise ValueError(f"refine_shape: confidence must have shape {(F, 18)}, got {C.shape}")
+    bad = ~np.isfinite(K).all(axis=-1) | ~np.isfinite(C)
+    C = np.where(bad, 0.0, C).astype(np.float32)
+    K = np.where(bad[..., None], 0.0, K).astype(np.float32)
+    if H < settings.height or W < settings.width:
+        raise ValueError(
+            f"refine_shape: depth {W}x{H} is smaller than settings' {settings.width}x"
+            f"{settings.height}"
+        )
+    if isinstance(floor, str):
+        if floor != "auto":
+            raise ValueError(f"refine_shape: floor must be 'auto', None or 4 numbers, got {floor!r}")
+        floor = _floor_for(D[0], intrinsics, P[0]) if config.use_floor else NO_FLOOR
+    elif floor is None:
+        floor = NO_FLOOR
+    floor = np.asarray(floor, dtype=np.float32)
+    if floor.shape != (4,) or not np.all(np.isfinite(floor)):
+        raise ValueError(f"refine_shape: floor must be (nx, ny, nz, d), got {floor!r}")
+
+    t0 = time.perf_counter()
+    cfg = config.replace(score_width=settings.width, score_height=settings.height)
+    intr = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
+    base = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
+    poses = jnp.asarray(P, _DTYPE)
+    floor = jnp.asarray(floor)
+    z_d, z_fg, known, lm, rays, mpp, caps = _observe_frames(
+        cfg, intr, floor, base, poses, jnp.asarray(D), jnp.asarray(K), jnp.asarray(C)
+    )
+    _, _, _, small_intr = tracker_observation(cfg, D[0], intr, floor, poses[0, :3])
+    origin, (h, w) = _windows(z_fg, caps, small_intr, margin=4, step=16)
+    rows = origin[:, :1] + np.arange(h)[None]  # (frame, h)
+    cols = origin[:, 1:] + np.arange(w)[None]  # (frame, w)
+
+    def crop(img):
+        return jnp.asarray(np.asarray(img)[np.arange(F)[:, None, None], rows[:, :, None], cols[:, None, :]])
+
+    fx, fy, cx, cy = (float(v) for v in (small_intr.fx, small_intr.fy, small_intr.cx, small_intr.cy))
+    z_fg_win = crop(z_fg)
+    frames = _Frames(
+        z_d=crop(z_d),
+        z_fg=z_fg_win,
+        known=crop(known),
+        fg_outside=jnp.sum(z_fg, axis=(1, 2)) - jnp.sum(z_fg_win, axis=(1, 2)),
+        ray_x=jnp.asarray(((cols - cx) / fx)[:, None, :], _DTYPE),
+        ray_y=jnp.asarray(((rows - cy) / fy)[:, :, None], _DTYPE),
+        landmarks=lm,
+        rays=rays,
+        mpp=mpp,
+    )
+    u, poses_out, history = refine_shape_core(base, poses, frames, intr, settings=settings)
+    u = np.asarray(u, dtype=np.float64)
+    history = np.asarray(history, dtype=np.float64)
+    refined = apply_factors(base, jnp.asarray(u, _DTYPE), settings.fields)
+    refined = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), refined)
+    factors = {
+        f: (float(SHOULDER_DROP_UNIT * u[k]) if f == "shoulder_drop" else float(np.exp(u[k])))
+        for k, f in enumerate(settings.fields)
+    }
+    seconds = time.perf_counter() - t0
+
+    def summary(row):
+        return {"loss": float(row[0]), "delta": float(row[1]), "landmark": float(row[2])}
+
+    report = {
+        "factors": factors,
+        "before": summary(history[0]),
+        "after": summary(history[-1]),
+        "params": np.asarray(poses_out, dtype=np.float64),
+        "history": history,
+        "seconds": seconds,
+        "frames": F,
+        "window": (h, w),
+    }
+    return refined, report
