@@ -814,7 +814,30 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     tr2.run(seq.depth[1:T], seq.keypoints2d[1:T], seq.confidence[1:T], progress=None)
     run_s = time.perf_counter() - t0
     run_steps = tr2.step_times[n_before:]
+    # The motion models on the same frames: online (one extra jitted call per frame, lag 0)
+    # and offline (the smoother after the forward pass), each against its own steps.
+    tr3 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape, mode="online")
+    for t in range(T):
+        tr3.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
+    online_ms = 1e3 * float(np.median(tr3.motion_times[1:]))
+    online_step = 1e3 * float(np.median(tr3.step_times))
+    # The smoother works in windows of 96 frames (80 new each): a recording of 176 frames
+    # (the T frames played forward and back) is two windows, the steady-state cost per frame.
+    k = len(seq.depth)
+    idx = [min(i % (2 * k - 2), 2 * k - 3 - i % (2 * k - 2)) if k > 1 else 0 for i in range(176)]
+    frames = ([seq.depth[i] for i in idx], [seq.keypoints2d[i] for i in idx],
+              [seq.confidence[i] for i in idx])  # fmt: skip
+    tr4 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape, mode="offline")
+    tr4.run(*frames, progress=None)
+    tr4 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape, mode="offline")
+    tr4.run(*frames, progress=None)  # compiled now: the timed run
+    offline_ms = 1e3 * tr4.smooth_s / len(idx)
+    offline_step = 1e3 * float(np.median(tr4.step_times))
     return {
+        "online_ms": round(online_ms, 3),
+        "online_total_over_step": round((online_step + online_ms) / online_step, 3),
+        "offline_ms_per_frame": round(offline_ms, 3),
+        "offline_total_over_step": round((offline_step + offline_ms) / offline_step, 3),
         "update_ms": round(1e3 * float(np.median(walls)), 3),
         "update_overhead_ms": round(1e3 * float(np.median(update_over)), 3),
         "run_ms_per_frame": round(1e3 * run_s / (T - 1), 3),
@@ -1114,7 +1137,7 @@ def main(argv=None):
                 if (
                     not args.no_host
                     and (w, h) == RESOLUTIONS[0]
-                    and (r.method == "lvm" or r.n in (5, 20))
+                    and (r.method == "lvm" or r.n in (5, 10, 20))
                 ):
                     r.extra.update(host_overhead(r, len(frames)))
             records.append(record_of(r, machine))
@@ -1128,14 +1151,16 @@ def main(argv=None):
     print(
         "\nhost overhead at 160x120 (ms per frame; 'added' = the public call's wall time minus"
         " its own step call, paired per frame): step | Tracker.update (added) | Tracker.run"
-        " (added)"
+        " (added) | online motion model (total / step) | offline smoother (total / step)"
     )
     for rec in records:
         if "update_ms" in rec:
             print(
                 f"  {rec['method']:5s} N={rec['N']:<3d} {rec['ms_median']:7.2f} | "
                 f"{rec['update_ms']:7.2f} ({rec['update_overhead_ms']:.2f}) | "
-                f"{rec['run_ms_per_frame']:7.2f} ({rec['run_overhead_ms_per_frame']:.2f})"
+                f"{rec['run_ms_per_frame']:7.2f} ({rec['run_overhead_ms_per_frame']:.2f}) | "
+                f"online +{rec['online_ms']:.2f} ({rec['online_total_over_step']:.2f}x) | "
+                f"offline +{rec['offline_ms_per_frame']:.2f} ({rec['offline_total_over_step']:.2f}x)"
             )
     for rec in records:
         if rec["method"] == "scipy_equal":

@@ -468,6 +468,12 @@ class Tracker:
         return self._floor
 
     @property
+    def motion_times(self) -> list[float]:
+        """Wall seconds of every online motion-model call (``mode="online"``; the first one
+        compiles)."""
+        return list(self._motion_times)
+
+    @property
     def step_times(self) -> list[float]:
         """Wall seconds of every steady-state step (the first, compiling call excluded)."""
         return list(self._step_times)
