@@ -233,7 +233,8 @@ def tracker_step(
             config, depth, intrinsics, floor, state.best[:3], refine=True
         )
         refined = refine_pose(
-            chosen, shape, jax.tree.map(lambda x: x[best], lm_h), intrinsics, use3d=use3d[best], use2d=use2d[best],
+            chosen, shape, jax.tree.map(lambda x: x[best], lm_h), intrinsics,
+            use3d=use3d[best], use2d=use2d[best],
             z_d=rz_d, z_fg=rz_fg, score_intrinsics=r_intr, steps=config.refine_steps,
             weight=config.refine_weight, sharpness=config.sharpness, d_M=config.d_M,
             settings=config.fit, known=rknown,

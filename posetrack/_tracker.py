@@ -425,7 +425,9 @@ class Tracker:
         self._state = None
         self._lost_run = 0
         # The next segment starts afresh: no smoothing across the re-initialisation.
-        self._window = eqx.tree_at(lambda w: w.valid, self._window, jnp.zeros_like(self._window.valid))
+        self._window = eqx.tree_at(
+            lambda w: w.valid, self._window, jnp.zeros_like(self._window.valid)
+        )
         self._window_valid[:] = False
 
     @property
