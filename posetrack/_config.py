@@ -137,18 +137,18 @@ class TrackerConfig(eqx.Module):
     consensus_refit: bool = eqx.field(default=True, static=True)
     """Refit the winner on all landmarks within ``consensus_distance`` of it (not in the paper)."""
     consensus_distance: float = 0.12
+    """Metres (2D: at the keypoint's depth) within which a landmark agrees with the winner.
+    Traced."""
     limb_hypotheses: int = eqx.field(default=0, static=True)
     """S of the N hypotheses restart every frame from the previous output with each limb
     turned onto this frame's 3D landmarks: as labelled, then with both arms and legs, the
     arms, the legs exchanged left/right (``posetrack._limbs``; 0 = off, at most 4; LVM has
-    none: :attr:`num_limb_hypotheses`). Delta
-    decides between them and the other hypotheses, so a locked left/right swap or a limb
-    too fast for the fit's few steps can recover. Not in the paper."""
+    none: :attr:`num_limb_hypotheses`). Delta decides between them and the other hypotheses,
+    so a locked left/right swap or a limb too fast for the fit's few steps can recover. Not in
+    the paper."""
     limb_distance: float = 0.2
     """A landmark enters a limb hypothesis' fit if it lies within this of the re-initialised
     pose (metres). Traced."""
-    """Metres (2D: at the keypoint's depth) within which a landmark agrees with the winner.
-    Traced."""
     invalid_is_unknown: bool = eqx.field(default=True, static=True)
     """Delta ignores rendered body over pixels without valid depth (holes, removed areas): the
     sensor cannot say the body is not there. False: Eq. (3) as written, where such pixels count

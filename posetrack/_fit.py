@@ -168,11 +168,14 @@ def fit_hypotheses(
     use3d: Bool[Array, "hyp kpt"],
     use2d: Bool[Array, "hyp kpt"],
     settings: FitSettings = FitSettings(),
+    per_hypothesis_landmarks: bool = False,
 ) -> FitResult:
     """:func:`fit_pose` vmapped over the leading ``hyp`` axis of the start poses and masks
-    (shape, landmarks and camera shared)."""
+    (shape and camera shared; the landmarks too, unless ``per_hypothesis_landmarks``: then
+    they carry a leading ``hyp`` axis, e.g. relabelled left/right for some hypotheses)."""
     return jax.vmap(
-        lambda p, u3, u2: fit_pose(
-            p, shape, landmarks, intrinsics, use3d=u3, use2d=u2, settings=settings
-        )
-    )(start_params, use3d, use2d)
+        lambda p, lm, u3, u2: fit_pose(
+            p, shape, lm, intrinsics, use3d=u3, use2d=u2, settings=settings
+        ),
+        in_axes=(0, 0 if per_hypothesis_landmarks else None, 0, 0),
+    )(start_params, landmarks, use3d, use2d)

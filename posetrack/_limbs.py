@@ -35,25 +35,19 @@ from ._select import consensus_set
 #: right arm, left arm, right leg, left leg (frames index ``body.JOINT_NAMES``).
 LIMBS = ((2, 3, 2, 3, 4), (4, 5, 5, 6, 7), (6, 7, 8, 9, 10), (8, 9, 11, 12, 13))
 
-_ARMS = ((3, 6), (4, 7))
-_LEGS = ((9, 12), (10, 13))
+_ARMS = (3, 4, 6, 7)  # elbows, wrists
+_LEGS = (9, 10, 12, 13)  # knees, ankles
 
 
-def _permutation(pairs) -> np.ndarray:
-    perm = np.arange(body.NUM_KEYPOINTS)
-    for a, b in pairs:
-        perm[a], perm[b] = b, a
-    return perm
+def _flipped(keypoints: tuple[int, ...]) -> np.ndarray:
+    """The identity labelling with ``keypoints`` exchanged left/right (``KEYPOINT_FLIP``)."""
+    idx = np.arange(body.NUM_KEYPOINTS)
+    return np.where(np.isin(idx, keypoints), np.asarray(body.KEYPOINT_FLIP), idx)
 
 
 #: Keypoint relabelling of each variant: landmark ``perm[i]`` plays model keypoint i.
 VARIANT_PERMUTATIONS = np.stack(
-    [
-        _permutation(()),
-        _permutation(_ARMS + _LEGS),
-        _permutation(_ARMS),
-        _permutation(_LEGS),
-    ]
+    [_flipped(()), _flipped(_ARMS + _LEGS), _flipped(_ARMS), _flipped(_LEGS)]
 ).astype(np.int32)
 MAX_VARIANTS = len(VARIANT_PERMUTATIONS)
 

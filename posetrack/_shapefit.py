@@ -209,8 +209,8 @@ def _frame_loss(shape, params, frames_f: _Frames, intrinsics, settings, res_sett
     use3d = lm.has_depth
     use2d = lm.detected & ~use3d
     e = landmark_residuals(
-        params, shape, eqx.tree_at(lambda x: x.points3d, lm, points), intrinsics, use3d=use3d, use2d=use2d, metres_per_pixel=frames_f.mpp,
-        settings=res_settings,
+        params, shape, eqx.tree_at(lambda x: x.points3d, lm, points), intrinsics,
+        use3d=use3d, use2d=use2d, metres_per_pixel=frames_f.mpp, settings=res_settings,
     )  # fmt: skip
     return delta, jnp.sum(e * e)
 

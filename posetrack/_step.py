@@ -22,7 +22,7 @@ from . import _body as body
 from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import tracker_landmarks, tracker_observation
-from ._fit import fit_pose
+from ._fit import fit_hypotheses, fit_pose
 from ._limbs import limb_hypotheses
 from ._observe import Landmarks
 from ._refine import refine_pose
@@ -190,24 +190,25 @@ def tracker_step(
     key, key_next = jax.random.split(state.key)
     lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
-    starts = state.hypotheses
+    starts, lm_fit = state.hypotheses, lm
     N, S = starts.shape[0], config.num_limb_hypotheses
-    lm_h = jax.tree.map(lambda x: jnp.broadcast_to(x, (N, *x.shape)), lm)
     if S:
         # The last S hypotheses restart from the previous output with the limbs turned onto
-        # this frame's landmarks, as labelled and swapped (``_limbs.py``; not in the paper).
+        # this frame's landmarks, as labelled and swapped (``_limbs.py``; not in the paper);
+        # each fits its own relabelled landmarks.
         s_start, s_lm, s_u3, s_u2 = limb_hypotheses(
             shape, intrinsics, state.best, lm, count=S, distance=config.limb_distance
         )
         starts = starts.at[N - S :].set(s_start)
-        lm_h = jax.tree.map(lambda a, b: a.at[N - S :].set(b), lm_h, s_lm)
+        lm_fit = jax.tree.map(
+            lambda x, y: jnp.broadcast_to(x, (N, *x.shape)).at[N - S :].set(y), lm, s_lm
+        )
         use3d = use3d.at[N - S :].set(s_u3)
         use2d = use2d.at[N - S :].set(s_u2)
-    fits = jax.vmap(
-        lambda p, l, u3, u2: fit_pose(
-            p, shape, l, intrinsics, use3d=u3, use2d=u2, settings=config.fit
-        )
-    )(starts, lm_h, use3d, use2d)
+    fits = fit_hypotheses(
+        starts, shape, lm_fit, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit,
+        per_hypothesis_landmarks=bool(S),
+    )  # fmt: skip
     params = fits.params
     # Hypothesis evaluation (Eq. (3)) on the downsampled, range-cropped observation.
     z_d, z_fg, known, small_intr = tracker_observation(
@@ -233,7 +234,7 @@ def tracker_step(
             config, depth, intrinsics, floor, state.best[:3], refine=True
         )
         refined = refine_pose(
-            chosen, shape, jax.tree.map(lambda x: x[best], lm_h), intrinsics,
+            chosen, shape, jax.tree.map(lambda x: x[best], lm_fit) if S else lm, intrinsics,
             use3d=use3d[best], use2d=use2d[best],
             z_d=rz_d, z_fg=rz_fg, score_intrinsics=r_intr, steps=config.refine_steps,
             weight=config.refine_weight, sharpness=config.sharpness, d_M=config.d_M,

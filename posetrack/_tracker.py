@@ -35,10 +35,19 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._smooth import OnlineWindow, SmoothSettings, online_flush, online_update_jit, smooth_sequence
+from ._smooth import (
+    OnlineWindow,
+    SmoothSettings,
+    online_flush,
+    online_update_jit,
+    smooth_sequence,
+)
 from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
+
+#: The pose pushed into the online window for a frame outside any track (never published).
+_NO_POSE = np.asarray(body.facing_camera_params(2.5), np.float32)
 
 #: Frame status codes (also the strings written to files).
 TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
@@ -353,7 +362,7 @@ class Tracker:
         the lagged output (:attr:`lagged`). Returns the smoothed ``(params, keypoints)`` of
         frame ``t - lag`` (``None`` if that frame has no pose)."""
         if self._state is None:  # no track: the frame takes part in no smoothing
-            kps, params, valid = np.zeros((18, 3)), self._window.params[-1], False
+            kps, params, valid = np.zeros((18, 3)), _NO_POSE, False
         elif est is None:  # held: the pose continues, nothing observed
             kps = np.asarray(body.keypoints(self.shape, self._state.best))
             params, valid, conf = self._state.best, True, np.zeros(18)
@@ -372,14 +381,12 @@ class Tracker:
         # The host mirrors the window's frame numbers and validity (no device round trip).
         self._window_valid = np.roll(self._window_valid, -1)
         self._window_valid[-1] = valid
-        if frame < 0 or not self._window_valid[i]:
-            self.lagged = None
-            self._motion_times.append(time.perf_counter() - t0)
-            return None
-        pose, pose_kps = np.asarray(pose), np.asarray(pose_kps)
+        has_pose = frame >= 0 and self._window_valid[i]
+        if has_pose:
+            pose, pose_kps = np.asarray(pose), np.asarray(pose_kps)
         self._motion_times.append(time.perf_counter() - t0)
-        self.lagged = (frame, pose, pose_kps)
-        return pose, pose_kps
+        self.lagged = (frame, pose, pose_kps) if has_pose else None
+        return self.lagged[1:] if has_pose else None
 
     def _forget_person(self) -> None:
         # Identity of the followed person: survives a track loss, not a reset().

@@ -235,26 +235,20 @@ def simulate_detector(rng: np.random.Generator, joints2d: np.ndarray, self_vis: 
         for group in _SWAP_GROUPS:
             r_idx = [a for a, _ in group]
             l_idx = [b for _, b in group]
-            overlap = _overlap(joints2d, r_idx, l_idx, size)
-            on = _episodes(rng, (cfg.swap_rate * (1 + 8 * overlap))[:, None], cfg.swap_frames,
-                           cfg.swap_lengths)
-            _swap(kp, conf, on[:, 0], r_idx, l_idx)
+            on = _side_episodes(rng, cfg, cfg.swap_rate, joints2d, r_idx, l_idx, size)
+            _swap(kp, conf, on, r_idx, l_idx)
     # Whole-body swaps (facing direction misread), likelier when the torso is seen sideways.
     if cfg.body_swap_rate > 0:
         r_idx = [a for a, _ in LR_PAIRS]
         l_idx = [b for _, b in LR_PAIRS]
-        overlap = _overlap(joints2d, [2, 8], [5, 11], size)
-        on = _episodes(rng, (cfg.body_swap_rate * (1 + 8 * overlap))[:, None],
-                       cfg.swap_frames, cfg.swap_lengths)
-        _swap(kp, conf, on[:, 0], r_idx, l_idx)
+        on = _side_episodes(rng, cfg, cfg.body_swap_rate, joints2d, [2, 8], [5, 11], size)
+        _swap(kp, conf, on, r_idx, l_idx)
     # Snaps: one side's limb reported on the other side's limb (both on one arm or leg).
     if cfg.snap_rate > 0:
         for group in _SNAP_GROUPS:
             r_idx = [a for a, _ in group]
             l_idx = [b for _, b in group]
-            overlap = _overlap(joints2d, r_idx, l_idx, size)
-            on = _episodes(rng, (cfg.snap_rate * (1 + 8 * overlap))[:, None], cfg.swap_frames,
-                           cfg.swap_lengths)[:, 0]
+            on = _side_episodes(rng, cfg, cfg.snap_rate, joints2d, r_idx, l_idx, size)
             for t0, t1 in _runs(on):
                 src, dst = (r_idx, l_idx) if rng.uniform() < 0.5 else (l_idx, r_idx)
                 n = t1 - t0
@@ -282,6 +276,17 @@ def _overlap(joints2d: np.ndarray, r_idx: list[int], l_idx: list[int], size: np.
     other, ~0 when apart by more than ~15 % of the person's size."""
     d = np.linalg.norm(joints2d[:, r_idx] - joints2d[:, l_idx], axis=-1).mean(axis=1)
     return np.exp(-((d / (0.08 * size)) ** 2))
+
+
+def _side_episodes(rng: np.random.Generator, cfg: DetectorConfig, rate: float,
+                   joints2d: np.ndarray, r_idx: list[int], l_idx: list[int],
+                   size: np.ndarray) -> np.ndarray:
+    """(T,) bool episodes of a left/right confusion starting at ``rate`` per frame, 9x as
+    likely where the two sides' keypoints ``r_idx`` and ``l_idx`` coincide in the image;
+    lengths from ``cfg.swap_frames`` / ``cfg.swap_lengths``."""
+    overlap = _overlap(joints2d, r_idx, l_idx, size)
+    return _episodes(rng, (rate * (1 + 8 * overlap))[:, None], cfg.swap_frames,
+                     cfg.swap_lengths)[:, 0]
 
 
 def _swap(kp: np.ndarray, conf: np.ndarray, sw: np.ndarray, r_idx: list[int],
