@@ -6,7 +6,8 @@ Subsets of Body Keypoints". The core, one module per stage:
     _body (model, FK) -> _geometry (body-derived constants) -> _camera -> _observe (lifting)
     -> _residuals (Eq. 1) -> _fit (LM) -> _score (Eq. 3) -> _render (rasteriser, render+score)
     -> _depthobs (observation preprocessing) -> _select (landmark subsets) -> _config
-    -> _step (one batched frame) -> _tracker (sequences); _metrics, _init, _refine beside them.
+    -> _step (one batched frame) -> _tracker (sequences); _metrics, _init, _refine beside them;
+    _associate (which person) and _sides (which side) relabel detections before the tracker.
 
 Around the core: ``posetrack.io`` (file formats), ``posetrack.synth`` (a synthetic RGB-D
 generator that is not the tracker's model), ``posetrack.detect`` (optional 2D detector) and
@@ -70,6 +71,9 @@ from ._score import delta as delta
 from ._score import delta_batch as delta_batch
 from ._shapefit import ShapeFitSettings as ShapeFitSettings
 from ._shapefit import refine_shape as refine_shape
+from ._sides import SIDE_GROUPS as SIDE_GROUPS
+from ._sides import SideLabeller as SideLabeller
+from ._sides import SideSettings as SideSettings
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate
@@ -111,6 +115,8 @@ __all__ = [
     "track", "tracker_step",
     # the motion model
     "MODES", "SmoothSettings", "smooth_window",
+    # the detector's left/right swaps
+    "SIDE_GROUPS", "SideLabeller", "SideSettings",
     # which person is followed
     "FollowSettings", "choose_person", "detection_score", "lift_candidates", "match_costs",
     # metrics

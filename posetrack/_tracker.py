@@ -35,6 +35,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
+from ._sides import SideLabeller, SideSettings
 from ._smooth import (
     OnlineWindow,
     SmoothSettings,
@@ -130,6 +131,11 @@ class TrackResult:
     per_frame_keypoints3d: np.ndarray | None = None
     """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
     model ran: then they are ``keypoints3d``)."""
+    exchanged: np.ndarray | None = None
+    """(T, groups) bool: where the detector's left and right keypoints of each
+    ``sides.groups`` group (default arms, legs) were exchanged back before fitting
+    (:class:`SideSettings`); ``None`` when no relabelling ran (``mode="per-frame"`` or
+    ``sides=None``)."""
     mode: str = "per-frame"
     """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
     (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
@@ -271,6 +277,11 @@ class Tracker:
     proportions measured while tracking. ``follow=None`` takes the highest-scoring detection
     every frame (what a per-frame choice does: the track hops between people; kept for
     comparison).
+
+    **Left/right swaps of the detector** are undone before each frame is fitted
+    (``sides``, :class:`SideSettings`; on in the offline and online modes): a group of keypoints
+    (arms, legs) whose left and right sides both jump and later jump back is read exchanged
+    while that is the continuous reading. :attr:`TrackResult.exchanged` says where.
     """
 
     def __init__(
@@ -287,6 +298,7 @@ class Tracker:
         lag: int = 0,
         motion: SmoothSettings = SmoothSettings(),
         fps: float = 30.0,
+        sides: SideSettings | None | str = "auto",
     ):
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
@@ -302,6 +314,14 @@ class Tracker:
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
         self.mode, self.lag, self.motion, self.fps = mode, int(lag), motion, float(fps)
+        if isinstance(sides, str) and sides == "auto":
+            # The paper's tracker ("per-frame") takes the detector's labels as they come.
+            sides = None if mode == "per-frame" else SideSettings()
+        if sides is not None and not isinstance(sides, SideSettings):
+            raise TypeError(
+                f"Tracker: sides must be posetrack.SideSettings, None or 'auto', got {sides!r}"
+            )
+        self.sides: SideSettings | None = sides
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
                 f"Tracker: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
@@ -392,6 +412,11 @@ class Tracker:
         # Identity of the followed person: survives a track loss, not a reset().
         self._follower = PersonFollower(self.follow, self.person_rule, self.intrinsics)
         self._person = -1
+        self._labeller = (
+            None if self.sides is None else SideLabeller(float(self.intrinsics.fx), self.sides)
+        )
+        self.exchanged = np.zeros(0 if self.sides is None else len(self.sides.groups), bool)
+        """Which :attr:`sides` groups the last frame's detections had exchanged."""
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -431,6 +456,8 @@ class Tracker:
         """Forget the hypotheses after a loss; keep who is followed."""
         self._state = None
         self._lost_run = 0
+        if self._labeller is not None:
+            self._labeller.reset()
         # The next segment starts afresh: no smoothing across the re-initialisation.
         self._window = eqx.tree_at(
             lambda w: w.valid, self._window, jnp.zeros_like(self._window.valid)
@@ -454,6 +481,10 @@ class Tracker:
         if p < 0:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
+        if self._labeller is not None:
+            kp, conf, self.exchanged = self._labeller.update(
+                kp, conf, cands.points3d[p], cands.has_depth[p]
+            )
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]
             z_ref = float(np.median(cands.points3d[p, own, 2])) if own.any() else None
@@ -663,6 +694,7 @@ class Tracker:
         has_d = np.zeros((T, 18), bool)
         det = np.zeros((T, 18), bool)
         person = np.full(T, -1, np.int64)
+        exchanged = None if self.sides is None else np.zeros((T, len(self.sides.groups)), bool)
         num_people = np.zeros(T, np.int64)
         kp2 = np.zeros((T, 18, 2), np.float32)
         lm_conf = np.zeros((T, 18), np.float32)
@@ -674,6 +706,8 @@ class Tracker:
                 params[i], kp3[i] = p_lag, k_lag
             status[t] = st
             person[t] = self._person
+            if exchanged is not None and self._person >= 0:
+                exchanged[t] = self.exchanged
             num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
             if progress is not None:
                 progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
@@ -756,6 +790,7 @@ class Tracker:
             person_index=person,
             num_people=num_people,
             per_frame_keypoints3d=per_frame,
+            exchanged=exchanged,
             mode=self.mode,
         )
 
@@ -794,14 +829,17 @@ def track(
     lag: int = 0,
     motion: SmoothSettings = SmoothSettings(),
     fps: float = 30.0,
+    sides: SideSettings | None | str = "auto",
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
     motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
-    "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior."""
+    "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior; ``sides``
+    undoes the detector's left/right swaps (:class:`SideSettings`; "auto": on in the offline
+    and online modes, off in "per-frame"; ``None``: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
-        lag=lag, motion=motion, fps=fps,
+        lag=lag, motion=motion, fps=fps, sides=sides,
     ).run(depths, keypoints2d, confidence, progress=progress)  # fmt: skip
 
 

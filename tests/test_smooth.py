@@ -203,6 +203,7 @@ def modes(clip):
     args = (clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics)
     return {
         "per-frame": pt.track(*args, mode="per-frame"),
+        "per-frame+sides": pt.track(*args, mode="per-frame", sides=pt.SideSettings()),
         "offline": pt.track(*args),
         "online": pt.track(*args, mode="online", lag=2),
         "online0": pt.track(*args, mode="online", lag=0),
@@ -212,7 +213,11 @@ def modes(clip):
 def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     off, per = modes["offline"], modes["per-frame"]
     assert off.mode == "offline" and per.per_frame_keypoints3d is None
-    np.testing.assert_array_equal(off.per_frame_keypoints3d, per.keypoints3d)
+    # Both read the detections' left/right sides the same way (per-frame mode only when asked).
+    assert per.exchanged is None and off.exchanged is not None
+    np.testing.assert_array_equal(
+        off.per_frame_keypoints3d, modes["per-frame+sides"].keypoints3d
+    )
     gt = clip.joints3d
     assert pt.acceleration_error(off.keypoints3d, gt) < 0.5 * pt.acceleration_error(
         per.keypoints3d, gt
@@ -248,3 +253,27 @@ def test_tracker_rejects_bad_motion_arguments(clip):
         pt.Tracker(clip.intrinsics, mode="online", lag=12)
     with pytest.raises(ValueError, match="fps"):
         pt.Tracker(clip.intrinsics, fps=0.0)
+
+
+def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes):
+    # Frames 12-27: the detector reports the right arm as the left one and vice versa.
+    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
+    sw = np.arange(12, 28)
+    for a, b in pt.SIDE_GROUPS["arms"]:
+        kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
+        conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
+    args = (clip.depth, kp, conf, clip.intrinsics)
+    fixed = pt.track(*args)
+    raw = pt.track(*args, sides=None)
+    assert raw.exchanged is None
+    seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
+    assert fixed.exchanged[sw[seen], 0].mean() > 0.9
+    assert fixed.exchanged[:12, 0].sum() + fixed.exchanged[28:, 0].sum() <= 2
+    gt = clip.joints3d
+    assert pt.swapped_limb_frames(fixed.keypoints3d, gt) <= pt.swapped_limb_frames(
+        modes["offline"].keypoints3d, gt
+    ) + 1
+    d_fixed = pt.accuracy(fixed.keypoints3d, gt).mean_mm
+    d_raw = pt.accuracy(raw.keypoints3d, gt).mean_mm
+    print(f"D with relabelling {d_fixed:.1f} mm, without {d_raw:.1f} mm")
+    assert d_fixed <= d_raw + 1.0

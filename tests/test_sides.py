@@ -1,0 +1,127 @@
+"""The detector's left/right swaps are undone before fitting (posetrack._sides)."""
+
+import numpy as np
+import pytest
+
+import posetrack as pt
+
+FX = 300.0
+ARMS = pt.SIDE_GROUPS["arms"]
+LEGS = pt.SIDE_GROUPS["legs"]
+
+
+def _walk(T: int = 80, seed: int = 0):
+    """A person 3 m away moving smoothly: (T, 18, 2) pixels, confidences, lifted points."""
+    rng = np.random.default_rng(seed)
+    base = np.zeros((18, 2))
+    x = {2: -25, 3: -40, 4: -50, 5: 25, 6: 40, 7: 50, 8: -12, 9: -15, 10: -17, 11: 12, 12: 15,
+         13: 17}  # fmt: skip
+    y = {2: -60, 3: -30, 4: 0, 5: -60, 6: -30, 7: 0, 8: 0, 9: 45, 10: 90, 11: 0, 12: 45, 13: 90}
+    for k in x:
+        base[k] = (160 + x[k], 120 + y[k])
+    t = np.arange(T)[:, None, None]
+    kp = base[None] + np.concatenate(
+        [np.sin(t / 9.0) * 8, np.cos(t / 7.0) * 5], axis=-1
+    )  # slow sway of the whole body
+    kp[:, [4, 7], 1] += 15 * np.sin(np.arange(T) / 5.0)[:, None]  # the wrists move more
+    kp = kp + rng.normal(0, 0.7, kp.shape)
+    conf = np.full((T, 18), 0.8)
+    p3 = np.zeros((T, 18, 3))
+    p3[..., 2] = 3.0
+    p3[..., :2] = (kp - 160) / FX * 3.0
+    return kp, conf, p3, np.ones((T, 18), bool)
+
+
+def _swap(kp, conf, frames, pairs):
+    kp, conf = kp.copy(), conf.copy()
+    for a, b in pairs:
+        kp[frames, a], kp[frames, b] = kp[frames, b].copy(), kp[frames, a].copy()
+        conf[frames, a], conf[frames, b] = conf[frames, b].copy(), conf[frames, a].copy()
+    return kp, conf
+
+
+def _run(kp, conf, p3, has, settings=pt.SideSettings()):
+    lab = pt.SideLabeller(FX, settings)
+    out = [lab.update(kp[t], conf[t], p3[t], has[t]) for t in range(len(kp))]
+    return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]),
+            np.stack([o[2] for o in out]))  # fmt: skip
+
+
+def test_an_arm_swap_episode_is_undone_and_nothing_else_moves():
+    kp, conf, p3, has = _walk()
+    sw = np.arange(20, 45)
+    bad_kp, bad_conf = _swap(kp, conf, sw, ARMS)
+    out_kp, out_conf, ex = _run(bad_kp, bad_conf, p3, has)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), sw)
+    assert not ex[:, 1].any()  # legs untouched
+    np.testing.assert_array_equal(out_kp, kp)
+    np.testing.assert_array_equal(out_conf, conf)
+
+
+def test_legs_and_arms_are_labelled_independently():
+    kp, conf, p3, has = _walk()
+    kp2, conf2 = _swap(kp, conf, np.arange(10, 18), ARMS)
+    kp2, conf2 = _swap(kp2, conf2, np.arange(40, 60), LEGS)
+    _, _, ex = _run(kp2, conf2, p3, has)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), np.arange(10, 18))
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 1]), np.arange(40, 60))
+
+
+def test_a_swap_seen_on_one_side_only_is_still_undone():
+    # During the swap the (true) left wrist and elbow are missed: the detector reports the
+    # right arm under the left labels and nothing under the right ones.
+    kp, conf, p3, has = _walk()
+    sw = np.arange(30, 40)
+    bad_kp, bad_conf = _swap(kp, conf, sw, ARMS)
+    bad_conf[np.ix_(sw, [3, 4])] = 0.0
+    bad_kp[np.ix_(sw, [3, 4])] = 0.0
+    _, out_conf, ex = _run(bad_kp, bad_conf, p3, has)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), sw)
+    assert (out_conf[np.ix_(sw, [6, 7])] == 0).all() and (out_conf[np.ix_(sw, [3, 4])] > 0).all()
+
+
+def test_labels_that_never_jump_are_kept_even_when_arms_cross():
+    # The wrists pass through each other (a real crossing): no jump, no relabelling.
+    kp, conf, p3, has = _walk()
+    T = len(kp)
+    s = np.linspace(-1, 1, T)
+    kp[:, 4, 0] = 160 + 50 * s
+    kp[:, 7, 0] = 160 - 50 * s
+    kp[:, 7, 1] = kp[:, 4, 1]
+    _, _, ex = _run(kp, conf, p3, has)
+    assert not ex.any()
+
+
+def test_a_swap_longer_than_the_jumps_are_worth_is_left_alone():
+    # From frame 20 to the end the labels stay exchanged: after ~jump/switch_cost frames the
+    # exchanged reading is no longer the cheaper one, and the detector's labels are taken.
+    kp, conf, p3, has = _walk(T=200)
+    bad_kp, bad_conf = _swap(kp, conf, np.arange(20, 200), ARMS)
+    _, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings(switch_cost=0.02))
+    assert ex[20:40, 0].all()
+    assert not ex[-20:, 0].any()
+
+
+def test_settings_and_labeller_reject_bad_values():
+    with pytest.raises(ValueError, match="groups"):
+        pt.SideSettings(groups=("arms", "tail"))
+    with pytest.raises(ValueError, match="switch_cost"):
+        pt.SideSettings(switch_cost=0.0)
+    with pytest.raises(ValueError, match="speed"):
+        pt.SideSettings(speed=float("nan"))
+    with pytest.raises(ValueError, match="fx"):
+        pt.SideLabeller(0.0)
+    with pytest.raises(TypeError, match="SideSettings"):
+        pt.SideLabeller(FX, {"switch_cost": 0.01})
+
+
+def test_reset_forgets_the_past():
+    kp, conf, p3, has = _walk()
+    bad_kp, bad_conf = _swap(kp, conf, np.arange(20, 80), ARMS)
+    lab = pt.SideLabeller(FX)
+    for t in range(25):
+        lab.update(bad_kp[t], bad_conf[t], p3[t], has[t])
+    assert lab.exchanged[0]
+    lab.reset()
+    # A new track starting inside the swap has nothing to compare with: labels as detected.
+    assert not lab.update(bad_kp[25], bad_conf[25], p3[25], has[25])[2].any()
