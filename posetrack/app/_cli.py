@@ -155,6 +155,7 @@ def _track(args) -> int:
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
+        sides=None if args.keep_sides else "auto",
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -181,9 +182,18 @@ def _track(args) -> int:
             "seed": args.seed,
             "mode": mode,
             "lag": args.online or 0,
+            "keep_sides": args.keep_sides,
         },
         "notes": notes,
         "person": person,
+        "sides_exchanged": (
+            None
+            if result.exchanged is None
+            else {
+                g: int(result.exchanged[:, i].sum())
+                for i, g in enumerate(tracker.sides.groups)
+            }
+        ),
         "timing": {
             "load_s": t_loaded - t_start,
             "detect_s": t_detected - t_loaded if args.detect else None,
@@ -205,6 +215,13 @@ def _track(args) -> int:
         f"{counts['no_observation']} without observation; mean Delta {mean_delta} "
         f"(tracked frames)"
     )
+    if result.exchanged is not None and result.exchanged.any():
+        undone = ", ".join(
+            f"{g} {int(result.exchanged[:, i].sum())}"
+            for i, g in enumerate(tracker.sides.groups)
+            if result.exchanged[:, i].any()
+        )
+        print(f"left/right swaps of the detector undone (frames): {undone}")
     if person["max_people"] > 1:
         print(
             f"person: followed people[{person['first_index']}] of frame "
@@ -414,6 +431,11 @@ def build_parser() -> argparse.ArgumentParser:
     motion.add_argument(
         "--per-frame", action="store_true",
         help="no motion model: every frame on its own (the paper's tracker)",
+    )  # fmt: skip
+    t.add_argument(
+        "--keep-sides", action="store_true",
+        help="take the detector's left/right labels as they come (default: undo its arm and "
+        "leg swaps before fitting, except with --per-frame)",
     )  # fmt: skip
     t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
