@@ -8,10 +8,10 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
 * LVM and MHT_h with no motion model (``mode="per-frame"``, the paper's trackers, the
   detector's left/right labels taken as they come);
 * MHT_h per-frame + a Gaussian filter over time (sigma = 2 frames): the post-hoc floor;
-* MHT_h ``mode="offline"`` (the default of ``posetrack track``): left/right relabelling of the
-  detections (``pt.SideSettings``) and the motion model over the whole recording; and the
-  same without the relabelling (``sides=None``), to show what each part buys;
-* MHT_h ``mode="online"`` with lag 0 and 4 (causal).
+* MHT_h ``mode="offline"`` (the default of ``posetrack track``): the motion model over the
+  whole recording; and the same with the opt-in left/right relabelling of the detections
+  (``sides=pt.SideSettings()``, ``--fix-sides``: "+ L/R");
+* MHT_h ``mode="online"`` with lag 0 and 4 (causal), and lag 0 + L/R.
 
 Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
 swapped limb pair, the worst clip's D as a multiple of LVM's on the same clip, and on the
@@ -41,8 +41,8 @@ from posetrack.app import machine_summary
 
 MOTIONS = ("walk", "box", "reach", "wave", "squat", "turn", "walk_across", "idle")
 ROWS = (
-    "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline no L/R",
-    "MHT_h offline", "MHT_h online L=0", "MHT_h online L=4",
+    "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
+    "MHT_h offline + L/R", "MHT_h online L=0", "MHT_h online L=4", "MHT_h online L=0 + L/R",
 )  # fmt: skip
 
 
@@ -57,12 +57,15 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
     out["naive lifting"] = pt.naive_lifting(pts, flags)
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
-    per = pt.track(*args, seq.intrinsics, mode="per-frame")
-    out["MHT_h per-frame"] = per.keypoints3d
-    out["MHT_h + Gaussian"] = pt.gaussian_smoothed(per.keypoints3d, 2.0)
-    out["MHT_h offline no L/R"] = pt.track(*args, seq.intrinsics, sides=None).keypoints3d
+    lr = pt.SideSettings()
+    out["MHT_h offline + L/R"] = pt.track(*args, seq.intrinsics, sides=lr).keypoints3d
+    out["MHT_h online L=0 + L/R"] = pt.track(
+        *args, seq.intrinsics, mode="online", sides=lr
+    ).keypoints3d
     tr = pt.Tracker(seq.intrinsics, mode="offline")
     off = tr.run(*args)
+    out["MHT_h per-frame"] = off.per_frame_keypoints3d
+    out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
     out["MHT_h offline"] = off.keypoints3d
     cost = {"step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames}
     for lag in (0, 4):
@@ -157,12 +160,12 @@ def main() -> int:
     for cond in summary:
         n_c = sum(c["occlusion"] == (0 if cond == "clean" else 2) for c in per_clip)
         print(f"\n{cond} ({n_c} clips)")
-        print(f"{'':21s} {'D mm':>6s} {'cover':>6s} {'C100':>6s} {'accel':>6s} {'swaps':>6s} "
+        print(f"{'':22s} {'D mm':>6s} {'cover':>6s} {'C100':>6s} {'accel':>6s} {'swaps':>6s} "
               f"{'worst/LVM':>9s} {'worst D':>7s} {'jitter':>6s}")  # fmt: skip
         for name, v in summary[cond].items():
             jit = "" if v["jitter_mm"] is None else f"{v['jitter_mm']:6.1f}"
             print(
-                f"{name:21s} {v['D_mm']:6.1f} {v['coverage']:6.3f} {v['C_100mm']:6.3f} "
+                f"{name:22s} {v['D_mm']:6.1f} {v['coverage']:6.3f} {v['C_100mm']:6.3f} "
                 f"{v['accel_mm']:6.1f} {v['swap_frames']:6d} {v['worst_vs_LVM']:9.2f} "
                 f"{v['worst_clip_D_mm']:7.1f} {jit:>6s}"
             )

@@ -134,8 +134,7 @@ class TrackResult:
     exchanged: np.ndarray | None = None
     """(T, groups) bool: where the detector's left and right keypoints of each
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
-    (:class:`SideSettings`); ``None`` when no relabelling ran (``mode="per-frame"`` or
-    ``sides=None``)."""
+    (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``, the default)."""
     mode: str = "per-frame"
     """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
     (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
@@ -278,10 +277,12 @@ class Tracker:
     every frame (what a per-frame choice does: the track hops between people; kept for
     comparison).
 
-    **Left/right swaps of the detector** are undone before each frame is fitted
-    (``sides``, :class:`SideSettings`; on in the offline and online modes): a group of keypoints
-    (arms, legs) whose left and right sides both jump and later jump back is read exchanged
-    while that is the continuous reading. :attr:`TrackResult.exchanged` says where.
+    **Left/right swaps of the detector** can be undone before each frame is fitted
+    (``sides=SideSettings()``; off by default): a group of keypoints (arms, legs) whose left
+    and right sides both jump and later jump back is read exchanged while that is the
+    continuous reading. :attr:`TrackResult.exchanged` says where. It helps on clips with
+    many detector swaps and hurts under occlusion and where legs cross in side views (see the
+    README's motion section), hence opt-in.
     """
 
     def __init__(
@@ -298,7 +299,7 @@ class Tracker:
         lag: int = 0,
         motion: SmoothSettings = SmoothSettings(),
         fps: float = 30.0,
-        sides: SideSettings | None | str = "auto",
+        sides: SideSettings | None = None,
     ):
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
@@ -314,13 +315,8 @@ class Tracker:
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
         self.mode, self.lag, self.motion, self.fps = mode, int(lag), motion, float(fps)
-        if isinstance(sides, str) and sides == "auto":
-            # The paper's tracker ("per-frame") takes the detector's labels as they come.
-            sides = None if mode == "per-frame" else SideSettings()
         if sides is not None and not isinstance(sides, SideSettings):
-            raise TypeError(
-                f"Tracker: sides must be posetrack.SideSettings, None or 'auto', got {sides!r}"
-            )
+            raise TypeError(f"Tracker: sides must be posetrack.SideSettings or None, got {sides!r}")
         self.sides: SideSettings | None = sides
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
@@ -829,14 +825,13 @@ def track(
     lag: int = 0,
     motion: SmoothSettings = SmoothSettings(),
     fps: float = 30.0,
-    sides: SideSettings | None | str = "auto",
+    sides: SideSettings | None = None,
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
     motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
     "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior; ``sides``
-    undoes the detector's left/right swaps (:class:`SideSettings`; "auto": on in the offline
-    and online modes, off in "per-frame"; ``None``: off)."""
+    undoes the detector's left/right swaps (:class:`SideSettings`; ``None``, the default: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides,

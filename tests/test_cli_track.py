@@ -194,12 +194,11 @@ def test_summary_and_printout(cli, poses):
     assert f"wrote {cli.out}/" in cli.stdout
     assert "note: intrinsics: plain layout, 320x240" in cli.stderr
     assert "note: keypoints: COCO-18" in cli.stderr
-    assert summary["inputs"]["keep_sides"] is False
-    assert set(summary["sides_exchanged"]) == {"arms", "legs"}
+    assert summary["inputs"]["fix_sides"] is False and summary["sides_exchanged"] is None
 
 
-def test_keep_sides_takes_the_detector_labels_as_they_come(rec, tmp_path):
-    # Arms exchanged by the detector in frames 4-11: undone by default, kept with the flag.
+def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
+    # Arms exchanged by the detector in frames 4-11: undone with the flag, kept by default.
     src = rec / "keypoints"
     swapped = tmp_path / "keypoints"
     shutil.copytree(src, swapped)
@@ -212,16 +211,16 @@ def test_keep_sides_takes_the_detector_labels_as_they_come(rec, tmp_path):
         doc["people"][0]["pose_keypoints_2d"] = [v for k in kp for v in k]
         f.write_text(json.dumps(doc))
     runs = {}
-    for name, extra in (("default", ()), ("keep", ("--keep-sides",))):
+    for name, extra in (("fix", ("--fix-sides",)), ("default", ())):
         args = track_args(rec, tmp_path / name, "--no-video", *extra)
         args[args.index("--keypoints") + 1] = swapped
         code, stdout, stderr = run_cli(*args)
         assert code == 0, stderr
         runs[name] = (json.loads((tmp_path / name / "summary.json").read_text()), stdout)
-    summary, stdout = runs["default"]
+    summary, stdout = runs["fix"]
     assert summary["sides_exchanged"]["arms"] >= 6 and summary["sides_exchanged"]["legs"] == 0
     assert "left/right swaps of the detector undone (frames): arms" in stdout
-    summary, stdout = runs["keep"]
+    summary, stdout = runs["default"]
     assert summary["sides_exchanged"] is None and "undone" not in stdout
 
 

@@ -84,6 +84,7 @@ def _track(args) -> int:
 
     from .. import io
     from .._config import TrackerConfig
+    from .._sides import SideSettings
     from .._tracker import Tracker
     from ._export import check_output_dir, save_results, status_counts
     from ._progress import ProgressBar
@@ -155,7 +156,7 @@ def _track(args) -> int:
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
-        sides=None if args.keep_sides else "auto",
+        sides=SideSettings() if args.fix_sides else None,
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -182,7 +183,7 @@ def _track(args) -> int:
             "seed": args.seed,
             "mode": mode,
             "lag": args.online or 0,
-            "keep_sides": args.keep_sides,
+            "fix_sides": args.fix_sides,
         },
         "notes": notes,
         "person": person,
@@ -433,9 +434,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="no motion model: every frame on its own (the paper's tracker)",
     )  # fmt: skip
     t.add_argument(
-        "--keep-sides", action="store_true",
-        help="take the detector's left/right labels as they come (default: undo its arm and "
-        "leg swaps before fitting, except with --per-frame)",
+        "--fix-sides", action="store_true",
+        help="undo the detector's left/right swaps of the arms and legs before fitting "
+        "(helps with frequent swaps, hurts under occlusion; see the README)",
     )  # fmt: skip
     t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
