@@ -36,6 +36,11 @@ default: on the standard tuning clips relabelling them made more errors than it 
 (face 17 -> 88 wrong frames, torso 0 -> 10), and a wrongly exchanged torso turns the body
 round.
 
+The tracker runs it only when asked (``Tracker(..., sides=SideSettings())``, ``posetrack track
+--fix-sides``): on the report clips it removed most swapped-limb frames where the person is
+seen whole, but under occlusion (one side hidden) and with legs crossing in side views it
+misreads often enough to cost accuracy (README, Motion).
+
 NumPy, not JAX: a handful of numbers per frame beside the person association, which is host
 side too (:mod:`posetrack._associate`), and each frame depends on the last.
 """
