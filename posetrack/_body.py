@@ -62,6 +62,13 @@ NUM_JOINTS = len(JOINT_NAMES)
 #: Left/right keypoint pairs (COCO-18 indices), e.g. for swap handling.
 KEYPOINT_FLIP = (0, 1, 5, 6, 7, 2, 3, 4, 11, 12, 13, 8, 9, 10, 15, 14, 17, 16)
 
+
+def flip_labels(keypoints) -> np.ndarray:
+    """``int (18,)`` the identity labelling with ``keypoints`` exchanged left/right
+    (:data:`KEYPOINT_FLIP`): ``x[flip_labels(k)]`` reads the other side for those keypoints."""
+    idx = np.arange(len(KEYPOINT_FLIP))
+    return np.where(np.isin(idx, list(keypoints)), np.asarray(KEYPOINT_FLIP), idx)
+
 #: Parent keypoint of each keypoint on the skeleton (the neck's parent is the hips' midpoint,
 #: marked -1; the nose's parent is the neck). Used by the geometric landmark weights.
 KEYPOINT_PARENTS = (1, -1, 1, 2, 3, 1, 5, 6, 1, 8, 9, 1, 11, 12, 0, 0, 14, 15)

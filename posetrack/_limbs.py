@@ -39,15 +39,9 @@ _ARMS = (3, 4, 6, 7)  # elbows, wrists
 _LEGS = (9, 10, 12, 13)  # knees, ankles
 
 
-def _flipped(keypoints: tuple[int, ...]) -> np.ndarray:
-    """The identity labelling with ``keypoints`` exchanged left/right (``KEYPOINT_FLIP``)."""
-    idx = np.arange(body.NUM_KEYPOINTS)
-    return np.where(np.isin(idx, keypoints), np.asarray(body.KEYPOINT_FLIP), idx)
-
-
 #: Keypoint relabelling of each variant: landmark ``perm[i]`` plays model keypoint i.
 VARIANT_PERMUTATIONS = np.stack(
-    [_flipped(()), _flipped(_ARMS + _LEGS), _flipped(_ARMS), _flipped(_LEGS)]
+    [body.flip_labels(k) for k in ((), _ARMS + _LEGS, _ARMS, _LEGS)]
 ).astype(np.int32)
 MAX_VARIANTS = len(VARIANT_PERMUTATIONS)
 

@@ -51,6 +51,8 @@ import dataclasses
 
 import numpy as np
 
+from ._body import flip_labels
+
 #: Groups of COCO-18 (right, left) pairs a detector exchanges together, by name. A
 #: whole-body swap exchanges all of them at once.
 SIDE_GROUPS: dict[str, tuple[tuple[int, int], ...]] = {
@@ -125,19 +127,21 @@ class SideLabeller:
             raise ValueError(f"SideLabeller: fx must be a positive focal length, got {fx!r}")
         self.settings = settings
         self.fx = float(fx)
-        self._pairs = [SIDE_GROUPS[g] for g in settings.groups]
+        pairs = [SIDE_GROUPS[g] for g in settings.groups]
+        # Per group: its keypoint slots (right keypoints, then left) and the other side's
+        # keypoint for each slot (what fills it under the "exchanged" labelling).
+        self._slots = [np.array([a for a, _ in p] + [b for _, b in p]) for p in pairs]
+        self._flipped = [flip_labels(slots)[slots] for slots in self._slots]
         self.reset()
 
     def reset(self) -> None:
         """Forget the person's past (a new track starts)."""
-        G = len(self._pairs)
-        self._cost = np.zeros((G, 2))
-        # Per group and state: each slot's (right keypoints, then left) last seen pixel,
-        # whether it was ever seen, and frames since.
-        self._px = [np.zeros((2, 2 * len(p), 2)) for p in self._pairs]
-        self._seen = [np.zeros((2, 2 * len(p)), bool) for p in self._pairs]
-        self._age = [np.zeros((2, 2 * len(p))) for p in self._pairs]
-        self.frames = 0
+        self._cost = np.zeros((len(self._slots), 2))
+        # Per group and labelling: each slot's last seen pixel, whether it was ever seen,
+        # and frames since.
+        self._px = [np.zeros((2, len(k), 2)) for k in self._slots]
+        self._seen = [np.zeros((2, len(k)), bool) for k in self._slots]
+        self._age = [np.zeros((2, len(k))) for k in self._slots]
 
     @property
     def exchanged(self) -> np.ndarray:
@@ -172,19 +176,14 @@ class SideLabeller:
         h3 = np.asarray(has_depth, bool).reshape(18) & np.isfinite(p3).all(axis=-1) & seen
         z_ref = float(np.median(p3[h3, 2])) if h3.any() else 3.0
         m_per_px = z_ref / self.fx
-        for g, pairs in enumerate(self._pairs):
-            right = [a for a, _ in pairs]
-            left = [b for _, b in pairs]
-            # What fills the slots (right keypoints, then left) under each labelling.
-            obs = [(kp[o], seen[o]) for o in (right + left, left + right)]
-            step = np.zeros((2, 2))  # [previous labelling, this labelling]
-            for sp in range(2):
-                for sn in range(2):
-                    okp, oseen = obs[sn]
-                    both = oseen & self._seen[g][sp]
-                    d = np.linalg.norm(okp - self._px[g][sp], axis=-1) * m_per_px
-                    d = np.maximum(d - s.speed * (self._age[g][sp] - 1.0), 0.0)
-                    step[sp, sn] = np.minimum(np.where(both, d, 0.0), s.cap).sum()
+        for g, orders in enumerate(zip(self._slots, self._flipped, strict=True)):
+            # What fills the slots under each labelling: (labelling, slot, ...).
+            okp, oseen = kp[np.stack(orders)], seen[np.stack(orders)]
+            # Jump costs [previous labelling, this labelling, slot].
+            d = np.linalg.norm(okp[None] - self._px[g][:, None], axis=-1) * m_per_px
+            d = np.maximum(d - s.speed * (self._age[g][:, None] - 1.0), 0.0)
+            both = oseen[None] & self._seen[g][:, None]
+            step = np.minimum(np.where(both, d, 0.0), s.cap).sum(axis=-1)
             total = self._cost[g][:, None] + step + np.array([0.0, s.switch_cost])[None, :]
             best_prev = total.argmin(axis=0)
             cost = total.min(axis=0)
@@ -197,21 +196,11 @@ class SideLabeller:
             px = self._px[g][best_prev]
             was_seen = self._seen[g][best_prev]
             age = self._age[g][best_prev] + 1.0
-            for sn in range(2):
-                okp, oseen = obs[sn]
-                px[sn] = np.where(oseen[:, None], okp, px[sn])
-                was_seen[sn] |= oseen
-                age[sn] = np.where(oseen, 1.0, age[sn])
+            px = np.where(oseen[..., None], okp, px)
+            was_seen |= oseen
+            age = np.where(oseen, 1.0, age)
             self._px[g], self._seen[g], self._age[g] = px, was_seen, age
             self._cost[g] = cost - cost.min()
-        self.frames += 1
         ex = self.exchanged
-        out_kp = np.array(keypoints2d, copy=True)
-        out_conf = np.array(confidence, copy=True)
-        for g, pairs in enumerate(self._pairs):
-            if ex[g]:
-                idx = [a for a, _ in pairs] + [b for _, b in pairs]
-                swapped = [b for _, b in pairs] + [a for a, _ in pairs]
-                out_kp[idx] = np.asarray(keypoints2d)[swapped]
-                out_conf[idx] = np.asarray(confidence)[swapped]
-        return out_kp, out_conf, ex
+        labels = flip_labels(np.concatenate([k for k, e in zip(self._slots, ex) if e] or [[]]))
+        return np.asarray(keypoints2d)[labels], np.asarray(confidence)[labels], ex

@@ -160,6 +160,11 @@ def _track(args) -> int:
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
+    undone = (  # frames with each left/right group read exchanged (--fix-sides)
+        None
+        if result.exchanged is None
+        else {g: int(n) for g, n in zip(tracker.sides.groups, result.exchanged.sum(axis=0))}
+    )
     t_tracked = time.perf_counter()
     person = _person_summary(result, rec.frame_ids, args.person)
     if kp2d.ndim == 4:  # the followed person's detections, for the overlay and the files
@@ -187,14 +192,7 @@ def _track(args) -> int:
         },
         "notes": notes,
         "person": person,
-        "sides_exchanged": (
-            None
-            if result.exchanged is None
-            else {
-                g: int(result.exchanged[:, i].sum())
-                for i, g in enumerate(tracker.sides.groups)
-            }
-        ),
+        "sides_exchanged": undone,
         "timing": {
             "load_s": t_loaded - t_start,
             "detect_s": t_detected - t_loaded if args.detect else None,
@@ -216,13 +214,9 @@ def _track(args) -> int:
         f"{counts['no_observation']} without observation; mean Delta {mean_delta} "
         f"(tracked frames)"
     )
-    if result.exchanged is not None and result.exchanged.any():
-        undone = ", ".join(
-            f"{g} {int(result.exchanged[:, i].sum())}"
-            for i, g in enumerate(tracker.sides.groups)
-            if result.exchanged[:, i].any()
-        )
-        print(f"left/right swaps of the detector undone (frames): {undone}")
+    if undone and any(undone.values()):
+        listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
+        print(f"left/right swaps of the detector undone (frames): {listed}")
     if person["max_people"] > 1:
         print(
             f"person: followed people[{person['first_index']}] of frame "
