@@ -7,12 +7,15 @@ the tracker vmaps it over hypotheses inside a single jit call (``fit_hypotheses`
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
+from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float, Int
 
 from ._body import BodyShape, normalize_params
@@ -93,14 +96,62 @@ def fit_problem(
 
 def fit_residuals(params: Float[Array, 43], args: tuple) -> Float[Array, " residual"]:
     """The residual vector of Eq. (1) plus the regularisers, for ``args`` from
-    :func:`fit_problem` (optimistix' ``fn(y, args)`` form)."""
-    shape, landmarks, intrinsics, use3d, use2d, mpp, start, settings = args
+    :func:`fit_problem` (optimistix' ``fn(y, args)`` form).
+
+    Differentiable; its derivative is the materialised (residual, 43) Jacobian times the
+    tangent (see :func:`_residuals_matrix_jvp`)."""
+    return _residuals(params, args[:-1], args[-1])
+
+
+def _raw_residuals(params, dyn_args: tuple, settings: ResidualSettings):
+    shape, landmarks, intrinsics, use3d, use2d, mpp, start = dyn_args
     lm = landmark_residuals(
         params, shape, landmarks, intrinsics,
         use3d=use3d, use2d=use2d, metres_per_pixel=mpp, settings=settings,
     )  # fmt: skip
     reg = regulariser_residuals(params, start, settings)
     return jnp.concatenate([lm.reshape(-1), reg])
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(2,))
+def _residuals(params, dyn_args: tuple, settings: ResidualSettings):
+    return _raw_residuals(params, dyn_args, settings)
+
+
+@functools.partial(_residuals.defjvp, symbolic_zeros=True)
+def _residuals_matrix_jvp(settings, primals, tangents):
+    """Forward derivative as ``J @ t`` with ``J`` materialised by ``jax.jacfwd``.
+
+    optimistix' Levenberg-Marquardt linearises the residuals, transposes the linearisation
+    (for J^T r) and materialises J^T J through it. Given the JVP as a plain matrix product, the
+    transpose is one more product instead of a transposed copy of the forward kinematics'
+    derivative: every LM program is smaller and compiles about a quarter faster
+    (``benchmarks/startup.py``), for the same steps (float32 rounding aside). Tangents of
+    the data (landmarks, shape) take the ordinary path, and only when they are not zero.
+    """
+    params, dyn_args = primals
+    t_params, t_dyn = tangents
+    f = _raw_residuals(params, dyn_args, settings)
+    df = jnp.zeros_like(f)
+    if not isinstance(t_params, SymbolicZero):
+        df = df + jax.jacfwd(_raw_residuals)(params, dyn_args, settings) @ t_params
+    zero = [isinstance(t, SymbolicZero) for t in jax.tree.leaves(t_dyn, is_leaf=_is_zero)]
+    if not all(zero):  # somebody differentiates through the data: the plain JVP
+        t_dyn = jax.tree.map(_instantiate, t_dyn, is_leaf=_is_zero)
+        df = df + jax.jvp(lambda d: _raw_residuals(params, d, settings), (dyn_args,), (t_dyn,))[1]
+    return f, df
+
+
+def _is_zero(x) -> bool:
+    return isinstance(x, SymbolicZero)
+
+
+def _instantiate(t):
+    if not isinstance(t, SymbolicZero):
+        return t
+    if t.dtype == jax.dtypes.float0:  # the tangent of an integer or boolean input
+        return np.zeros(t.shape, jax.dtypes.float0)
+    return jnp.zeros(t.shape, t.dtype)
 
 
 def fit_pose(
