@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -86,6 +87,31 @@ def sort_last_axis(values: Array) -> Array:
     return jnp.stack(keys[:n], axis=-1)
 
 
+def kth_smallest_nonnegative(values: Array, k: Array) -> Array:
+    """The ``k``-th smallest (0-based, per row) along the last axis of non-negative floats
+    (``+inf`` allowed): exactly the value a full sort would put at index ``k``.
+
+    For large blocks (12x12 = 144 pixels for 1920x1080 -> 160x90) sorting every block cost
+    ~200-300 ms a frame on CPU. Non-negative floats order like their bit patterns read as
+    integers, so a bisection on the bits finds the smallest value with at least ``k + 1``
+    values at or below it in 31 (float32) counting passes: ~15 ms for the same blocks.
+    """
+    dtype = values.dtype
+    ibits = jnp.int32 if dtype.itemsize == 4 else jnp.int64
+    bits = jax.lax.bitcast_convert_type(values, ibits)
+    lo = jnp.zeros(k.shape, ibits)
+    hi = jnp.broadcast_to(jax.lax.bitcast_convert_type(jnp.asarray(jnp.inf, dtype), ibits), k.shape)
+
+    def halve(_, bounds):
+        lo, hi = bounds
+        mid = lo + (hi - lo) // 2
+        enough = jnp.sum(bits <= mid[..., None], axis=-1) >= k + 1
+        return jnp.where(enough, lo, mid + 1), jnp.where(enough, mid, hi)
+
+    lo, _ = jax.lax.fori_loop(0, 8 * dtype.itemsize - 1, halve, (lo, hi))
+    return jax.lax.bitcast_convert_type(lo, dtype)
+
+
 def downsample_depth(
     depth_m: Float[Array, "H W"],
     factor: int | tuple[int, int],
@@ -127,9 +153,12 @@ def downsample_depth(
     valid = jnp.isfinite(blocks) & (blocks > 0)
     n_valid = jnp.sum(valid, axis=-1)
     # Invalid pixels sort last (+inf), so the k-th smallest valid depth sits at index k.
-    ordered = sort_last_axis(jnp.where(valid, blocks, jnp.inf))
+    keyed = jnp.where(valid, blocks, jnp.inf)
     mid = jnp.maximum(n_valid - 1, 0) // 2
-    median = jnp.take_along_axis(ordered, mid[..., None], axis=-1)[..., 0]
+    if fy * fx <= 32:
+        median = jnp.take_along_axis(sort_last_axis(keyed), mid[..., None], axis=-1)[..., 0]
+    else:
+        median = kth_smallest_nonnegative(keyed, mid)
     enough = n_valid >= max(1, math.ceil(min_valid * fy * fx))
     return jnp.where(enough, median, 0.0).astype(depth_m.dtype)
 
@@ -199,6 +228,11 @@ def observation_maps(
     return jnp.where(keep, z, 0.0), keep.astype(dtype)
 
 
+_FLOOR_MAX_WIDTH = 640
+"""``fit_floor_plane`` works on every k-th pixel of wider depth maps: its least-squares
+refinement over all 2 million pixels of a 1920x1080 map took 1.4 s at the first frame."""
+
+
 def fit_floor_plane(
     depth_m: np.ndarray,
     intrinsics: Intrinsics,
@@ -226,7 +260,8 @@ def fit_floor_plane(
     fitted floor by a couple of centimetres.
 
     Args:
-        depth_m: depth in metres (any resolution matching ``intrinsics``); 0 or NaN = invalid.
+        depth_m: depth in metres (any resolution matching ``intrinsics``; maps wider than 640
+            pixels are read at every k-th pixel, k = ceil(width / 640)); 0 or NaN = invalid.
         intrinsics: camera of ``depth_m``.
         seed: RANSAC random seed (the fit is deterministic given it).
         iterations: RANSAC samples.
@@ -248,6 +283,14 @@ def fit_floor_plane(
         raise ValueError(
             f"fit_floor_plane: depth_m has shape {depth.shape}, intrinsics say {intrinsics.shape}"
         )
+    stride = -(-intrinsics.width // _FLOOR_MAX_WIDTH)
+    if stride > 1:  # every stride-th pixel: the same camera at a lower resolution
+        depth = depth[::stride, ::stride]
+        intrinsics = Intrinsics(
+            fx=float(intrinsics.fx) / stride, fy=float(intrinsics.fy) / stride,
+            cx=float(intrinsics.cx) / stride, cy=float(intrinsics.cy) / stride,
+            width=depth.shape[1], height=depth.shape[0],
+        )  # fmt: skip
     valid = np.isfinite(depth) & (depth > 0)
     grid = pixel_rays_np(**intrinsics.to_dict()) * np.where(valid, depth, np.nan)[..., None]
     all_points = grid[valid]
