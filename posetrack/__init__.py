@@ -61,6 +61,7 @@ from ._metrics import swapped_limb_frames as swapped_limb_frames
 from ._metrics import swapped_limbs as swapped_limbs
 from ._observe import Landmarks as Landmarks
 from ._observe import lift_keypoints as lift_keypoints
+from ._programs import enable_cache as enable_cache
 from ._refine import refine_pose as refine_pose
 from ._render import Capsules as Capsules
 from ._render import render_and_score as render_and_score
@@ -113,6 +114,8 @@ __all__ = [
     "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
+    # start-up: compiled programs kept on disk
+    "enable_cache",
     # the motion model
     "MODES", "SmoothSettings", "smooth_window",
     # the detector's left/right swaps

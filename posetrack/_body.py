@@ -462,6 +462,13 @@ def facing_camera_params(distance: float = 2.5, dtype=None) -> Float[Array, 43]:
     )
 
 
+def facing_camera_params_np(distance: float = 2.5) -> np.ndarray:
+    """:func:`facing_camera_params` as a float32 NumPy array, for host code (no JAX dispatch:
+    computing it at import time with JAX cost a third of a second of start-up)."""
+    quats = [0.0, 1.0, 0.0, 0.0] + [1.0, 0.0, 0.0, 0.0] * (NUM_JOINTS - 1)
+    return np.asarray([0.0, 0.0, distance, *quats], np.float32)
+
+
 def normalize_params(params: Float[Array, "*batch 43"]) -> Float[Array, "*batch 43"]:
     """Same pose with unit quaternions, each with w >= 0 (a canonical sign)."""
     t = params[..., :3]

@@ -51,6 +51,7 @@ from . import _body as body
 from ._camera import Intrinsics
 from ._fit import fit_problem, fit_residuals
 from ._observe import Landmarks
+from ._programs import program
 from ._residuals import ResidualSettings, _sqrt_reweight
 from ._select import consensus_set
 
@@ -362,22 +363,19 @@ def smooth_sequence(
         fps: frame rate, Hz.
 
     Returns:
-        (T, 43) NumPy float32; frames that are not ``valid`` are returned unchanged.
+        ``(params, keypoints)``: (T, 43) NumPy float32, frames that are not ``valid``
+        unchanged; (T, 18, 3) the keypoints of those poses, metres.
     """
     params = np.asarray(params, np.float32)
     valid = np.asarray(valid, bool)
     T = len(params)
     W, step = settings.window, settings.window - settings.overlap
     half = settings.overlap // 2
-    safe = np.where(valid[:, None], params, np.asarray(body.facing_camera_params(2.5)))
+    safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
-    use3d, use2d = consensus_masks_jit(
-        shape, intrinsics, jnp.asarray(safe), jax.tree.map(jnp.asarray, lm),
-        settings.consensus_distance,
-    )  # fmt: skip
-    use3d, use2d = np.asarray(use3d), np.asarray(use2d)
     conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
     out = params.copy()
+    out_kps = np.zeros((T, 18, 3), np.float32)
     fps_arr = jnp.asarray(fps, jnp.float32)
     start = 0
     while True:
@@ -389,25 +387,47 @@ def smooth_sequence(
             widths = [(0, W - n)] + [(0, 0)] * (x.ndim - 1)
             return np.pad(x, widths, constant_values=fill)
 
-        smoothed = smooth_window_jit(
+        smoothed, kps = smooth_window_program(
             settings, shape, intrinsics, jnp.asarray(pad(safe)),
-            jax.tree.map(lambda x: jnp.asarray(pad(x)), lm),
-            jnp.asarray(pad(use3d)), jnp.asarray(pad(use2d)), jnp.asarray(pad(valid)), fps_arr,
+            jax.tree.map(lambda x: jnp.asarray(pad(x)), lm), jnp.asarray(pad(valid)), fps_arr,
             jnp.asarray(pad(conf)),
         )  # fmt: skip
-        smoothed = np.asarray(smoothed)[:n]
+        smoothed, kps = np.asarray(smoothed)[:n], np.asarray(kps)[:n]
         first = 0 if start == 0 else half
         last = n if stop == T else n - half
         keep = np.arange(first, last)
         out[start + keep] = np.where(
             valid[start + keep, None], smoothed[keep], params[start + keep]
         )
+        out_kps[start + keep] = kps[keep]
         if stop == T:
-            return out
+            return out, out_kps
         start += step
 
 
-consensus_masks_jit = jax.jit(consensus_masks, static_argnums=4)
+@program("smooth_window", static_argnums=(0,))
+def smooth_window_program(
+    settings: SmoothSettings,
+    shape: body.BodyShape,
+    intrinsics: Intrinsics,
+    params: Float[Array, "frame 43"],
+    landmarks: Landmarks,
+    valid: Bool[Array, " frame"],
+    fps: Float[Array, ""],
+    pose_confidence: Float[Array, "frame kpt"],
+) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
+    """One window of :func:`smooth_sequence` as one compiled program: each frame's consensus
+    landmarks, :func:`smooth_window`, and the keypoints of the smoothed poses (of the valid
+    frames; the others' are those of ``params``). Any recording length reuses it."""
+    use3d, use2d = consensus_masks(
+        shape, intrinsics, params, landmarks, settings.consensus_distance
+    )
+    P = smooth_window(
+        settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps, pose_confidence
+    )
+    return P, jax.vmap(lambda p: body.keypoints(shape, p))(P)
+
+
 
 
 class OnlineWindow(eqx.Module):
@@ -537,10 +557,10 @@ def online_update(
     return window, pose, body.keypoints(shape, pose)
 
 
-online_update_jit = eqx.filter_jit(online_update)
+online_update_jit = program("online_update", static_argnums=(0, 8))(online_update)
 
 
-@eqx.filter_jit
+@program("online_flush", static_argnums=(0,))
 def online_flush(
     settings: SmoothSettings, shape: body.BodyShape, fps: Float[Array, ""], window: OnlineWindow
 ) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:

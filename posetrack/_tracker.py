@@ -9,6 +9,7 @@ re-initialising when observations return.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -35,6 +36,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
+from ._programs import Program, program
 from ._sides import SideLabeller, SideSettings
 from ._smooth import (
     OnlineWindow,
@@ -42,13 +44,14 @@ from ._smooth import (
     online_flush,
     online_update_jit,
     smooth_sequence,
+    smooth_window_program,
 )
 from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
 
 #: The pose pushed into the online window for a frame outside any track (never published).
-_NO_POSE = np.asarray(body.facing_camera_params(2.5), np.float32)
+_NO_POSE = body.facing_camera_params_np(2.5)
 
 #: Frame status codes (also the strings written to files).
 TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
@@ -62,36 +65,46 @@ MODES = ("offline", "online", "per-frame")
 ProgressCallback = Callable[[int, int, str], None]
 
 
-# Module-level jitted functions, compiled once per (static part of the config, shapes) and shared
-# by every Tracker. The config is an ordinary argument: its static fields are part of the pytree
-# structure (a change recompiles), its float fields are traced leaves (a change does not).
-@jax.jit
+# Module-level programs, compiled once per (static part of the config, shapes) and shared by
+# every Tracker (``_programs.Program``: a jitted function that is also kept on disk when the
+# cache is on, so a new process skips tracing). The config is an ordinary argument: its static
+# fields are part of the pytree structure (a change recompiles), its float fields are traced
+# leaves (a change does not).
+@program("step")
 def step(
     config: TrackerConfig, shape, intrinsics, floor, state: TrackState, depth, kp2d, conf
 ) -> tuple[TrackState, FrameEstimate]:
-    """:func:`~posetrack.tracker_step`, jitted, exactly as :meth:`Tracker.update` calls it."""
+    """:func:`~posetrack.tracker_step`, compiled, exactly as :meth:`Tracker.update` calls it."""
     return tracker_step(config, shape, intrinsics, floor, state, depth, kp2d, conf)
 
 
-@jax.jit
+@program("lift", rare=True)
 def lift(config: TrackerConfig, shape, intrinsics, depth, kp2d, conf) -> Landmarks:
-    """The tracker's lifting (``tracker_landmarks``), jitted."""
+    """The tracker's lifting (``tracker_landmarks``), compiled."""
     return tracker_landmarks(config, shape, intrinsics, depth, kp2d, conf)
 
 
-@partial(jax.jit, static_argnums=0)
+@program("initial_fit", static_argnums=(0,), rare=True)
 def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks):
-    """The (re-)initialisation fit on all landmarks, jitted; returns (FitResult, keypoints)."""
+    """The (re-)initialisation fit on all landmarks, compiled; returns (FitResult, keypoints)."""
     res = fit_pose(
         params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
     )
     return res, body.keypoints(shape, res.params)
 
 
-@jax.jit
-def keypoints_batch(shape, params):
-    """The keypoints of a stack of poses, (frame, 18, 3), jitted."""
-    return jax.vmap(lambda p: body.keypoints(shape, p))(params)
+def _in_thread(jobs) -> None:
+    """Prepare ``[(program, args), ...]`` one after another in a daemon thread (a caller that
+    needs one of them meanwhile waits for it, see ``Program``)."""
+
+    def work():
+        for prog, args in jobs:
+            try:
+                prog.prepare(*args)
+            except Exception:  # the frame that needs it compiles it again and raises there
+                return
+
+    threading.Thread(target=work, name="posetrack-prepare", daemon=True).start()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -360,6 +373,7 @@ class Tracker:
         self._step_times: list[float] = []
         self._motion_times: list[float] = []
         self.smooth_s = 0.0
+        self._prepare_started = False
         self._forget_person()
         self._reset_motion()
 
@@ -415,6 +429,66 @@ class Tracker:
         """Which :attr:`sides` groups the last frame's detections had exchanged."""
 
     # -- set-up ------------------------------------------------------------------------------
+
+    def _start_preparing(self) -> None:
+        """Once per tracker: start building its programs in the background."""
+        if not self._prepare_started:
+            self._prepare_started = True
+            self.prepare(background=True)
+
+    def prepare(self, *, background: bool = False) -> None:
+        """Build the compiled programs this tracker needs for its configuration, image size and
+        mode now, instead of at the first frame that needs each.
+
+        With ``background=True`` it returns once the step is traced and the rest goes on in
+        threads (a frame that needs a program waits for it): :meth:`run` and the first
+        :meth:`update` do this, so the step compiles while the body shape is estimated and
+        the track initialised. With the cache on
+        (:func:`posetrack.enable_cache`, as the command line does), a later process reads the
+        programs from disk instead of tracing and compiling them (``posetrack warmup``).
+        """
+        f32 = partial(jax.ShapeDtypeStruct, dtype=_DTYPE)
+        N = self.config.n
+        shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
+        intr = self.intrinsics
+        depth, kp, conf = f32(intr.shape), f32((18, 2)), f32((18,))
+        lm = jax.eval_shape(
+            partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
+        )
+        key = jax.eval_shape(lambda k: jax.random.split(k)[1], self._key)
+        state = TrackState(
+            hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key
+        )
+        jobs = [
+            (lift, (self.config, shape, intr, depth, kp, conf)),
+            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm)),
+        ]
+        later = []
+        if self.mode == "offline":
+            W = self.motion.window
+            window_lm = jax.tree.map(lambda a: jax.ShapeDtypeStruct((W, *a.shape), a.dtype), lm)
+            later.append((smooth_window_program, (
+                self.motion, shape, intr, f32((W, 43)), window_lm,
+                jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)),
+            )))  # fmt: skip
+        elif self.mode == "online":
+            later.append((online_update_jit, (
+                self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
+                f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
+            )))  # fmt: skip
+        step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
+        if not isinstance(step, Program):  # replaced (tests count its traces): compile on use
+            return
+        if not background:
+            for prog, args in (*jobs, (step, step_args), *later):
+                prog.prepare(*args)
+            return
+        # The step (the big program), then the motion model (the first frames do not need
+        # it) in one thread. Tracing holds the interpreter, so the small set-up programs start
+        # once the step is traced; their compilation then runs beside the step's.
+        _in_thread([(step, step_args), *later])
+        step.wait_traced(*step_args)
+        _in_thread(jobs)
 
     def _lift(self, depth_m, kp, conf) -> Landmarks:
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
@@ -609,6 +683,7 @@ class Tracker:
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""
+        self._start_preparing()
         depth_m = check_depth(self.intrinsics, depth, self.depth_scale, "update")
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
@@ -676,6 +751,7 @@ class Tracker:
             )
         if T == 0:
             raise ValueError("run: the sequence has no frames")
+        self._start_preparing()
         if self.shape is None:
             n = min(self.config.shape_frames, T)
             t0 = time.perf_counter()
@@ -751,16 +827,12 @@ class Tracker:
                     detected=det, has_depth=has_d,
                 )  # fmt: skip
                 t0 = time.perf_counter()
-                smoothed = smooth_sequence(
+                smoothed, smoothed_kps = smooth_sequence(
                     self.motion, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
                     fps=self.fps, pose_confidence=conf_out,
                 )  # fmt: skip
                 params = np.where(valid[:, None], smoothed, params)
-                kp3 = np.where(
-                    valid[:, None, None],
-                    np.asarray(keypoints_batch(self.shape, jnp.asarray(params))),
-                    kp3,
-                )
+                kp3 = np.where(valid[:, None, None], smoothed_kps, kp3)
                 self.smooth_s = time.perf_counter() - t0
         # Never NaN parameters: frames without an estimate take the nearest estimated pose.
         have = np.flatnonzero(np.isfinite(params).all(axis=1))
@@ -768,7 +840,7 @@ class Tracker:
             nearest = have[np.abs(np.arange(T)[:, None] - have[None]).argmin(axis=1)]
             params = params[nearest]
         else:
-            params = np.tile(np.asarray(body.facing_camera_params(2.5)), (T, 1))
+            params = np.tile(body.facing_camera_params_np(2.5), (T, 1))
         times = self._step_times
         return TrackResult(
             keypoints3d=kp3,

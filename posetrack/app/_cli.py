@@ -1,4 +1,4 @@
-"""The ``posetrack`` command line: ``demo``, ``generate``, ``track``."""
+"""The ``posetrack`` command line: ``demo``, ``generate``, ``track``, ``warmup``."""
 
 from __future__ import annotations
 
@@ -279,6 +279,53 @@ def _person_arg(value: str):
     return index
 
 
+def _size_arg(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 640x480, got {text!r}")
+    if w < 8 or h < 8:
+        raise argparse.ArgumentTypeError(f"image size must be at least 8x8, got {text!r}")
+    return w, h
+
+
+def _warmup(args) -> int:
+    from .. import io
+    from .._camera import Intrinsics
+    from .._config import TrackerConfig
+    from .._programs import cache_dir
+    from .._tracker import Tracker
+
+    folder = cache_dir()
+    if folder is None:
+        raise ValueError(
+            "warmup: the cache is off (POSETRACK_CACHE_DIR=off, or its folder is not "
+            "writable); there is nothing to fill"
+        )
+    if (args.intrinsics is None) == (args.size is None):
+        raise ValueError("warmup: give the depth camera as --intrinsics FILE or --size WxH")
+    if args.intrinsics is not None:
+        intrinsics = io.read_intrinsics_json(args.intrinsics)
+    else:
+        w, h = args.size
+        intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
+    if args.hypotheses is not None and args.hypotheses < 1:
+        raise ValueError(f"--hypotheses must be at least 1, got {args.hypotheses}")
+    overrides = {}
+    if args.hypotheses is not None and args.method != "lvm":
+        overrides["num_hypotheses"] = args.hypotheses
+    config = TrackerConfig.recommended(args.method, **overrides)
+    mode = "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
+    t0 = time.perf_counter()
+    Tracker(intrinsics, config, mode=mode, lag=args.online or 0).prepare()
+    print(
+        f"warmup: {config.method}, {config.n} hypothes{'is' if config.n == 1 else 'es'}, "
+        f"{intrinsics.width}x{intrinsics.height}, {mode}: ready in {folder.parent} "
+        f"({time.perf_counter() - t0:.1f} s)"
+    )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ..synth import MOTIONS  # NumPy only: the help lists what generate accepts
 
@@ -439,28 +486,37 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, metavar="DIR", help="output folder (replaced as a whole)"
     )
     t.set_defaults(func=_track)
+
+    w = sub.add_parser(
+        "warmup",
+        help="compile the tracker for a configuration into the cache ahead of time",
+        description="Compile the tracker's programs for one configuration and depth size into "
+        "the cache (POSETRACK_CACHE_DIR, default ~/.cache/posetrack), e.g. in a Docker build, "
+        "so that the first `posetrack track` with that configuration starts in seconds. The "
+        "options mean what they mean for `posetrack track`; the camera's focal length does "
+        "not matter, its image size does.",
+    )  # fmt: skip
+    w.add_argument("--intrinsics", metavar="FILE", help="the depth camera's intrinsics JSON")
+    w.add_argument("--size", type=_size_arg, metavar="WxH", help="or only its image size")
+    w.add_argument(
+        "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
+        help="tracker variant (default: %(default)s)",
+    )  # fmt: skip
+    w.add_argument("--hypotheses", type=int, metavar="N", help="number of hypotheses")
+    wm = w.add_mutually_exclusive_group()
+    wm.add_argument("--online", type=int, nargs="?", const=0, default=None, metavar="LAG")
+    wm.add_argument("--per-frame", action="store_true")
+    w.set_defaults(func=_warmup)
     return p
 
 
 def enable_compilation_cache() -> None:
-    """Keep JAX's compiled tracker steps on disk between runs (tens of seconds saved per run).
+    """Keep compiled programs on disk between runs (``posetrack.enable_cache``): tens of
+    seconds saved per run. ``POSETRACK_CACHE_DIR`` chooses the folder (default
+    ``~/.cache/posetrack``); ``off`` disables it."""
+    from .._programs import enable_cache
 
-    ``POSETRACK_CACHE_DIR`` chooses the folder (default ``~/.cache/posetrack/jax``); ``off``
-    disables it. Entries are keyed by the compiled program, so a new posetrack or JAX version
-    simply compiles afresh.
-    """
-    default = os.path.join(os.path.expanduser("~"), ".cache", "posetrack", "jax")
-    path = os.environ.get("POSETRACK_CACHE_DIR", default)
-    if path.lower() in ("off", "none", "0", ""):
-        return
-    import jax
-
-    try:
-        os.makedirs(path, exist_ok=True)
-    except OSError:
-        return  # read-only home: run without a cache
-    jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    enable_cache()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,7 @@
+"""``python -m posetrack``: the command line (same as the ``posetrack`` script)."""
+
+import sys
+
+from .app import main
+
+sys.exit(main())
