@@ -484,3 +484,24 @@ def test_ctrl_c_while_writing_leaves_the_previous_output(cli, rec, tmp_path, mon
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
     assert [p.name for p in tmp_path.iterdir()] == ["out"]  # temporary folder removed
+
+
+def test_warmup_fills_the_cache_for_a_configuration():
+    """``posetrack warmup`` builds the programs of a configuration into the cache (the
+    session's: conftest points ``POSETRACK_CACHE_DIR`` into pytest's cache folder)."""
+    from posetrack import _programs
+
+    code, stdout, stderr = run_cli("warmup", "--size", "160x120", "--method", "lvm", "--per-frame")
+    assert code == 0, stderr
+    assert "warmup: lvm, 1 hypothesis, 160x120, per-frame: ready in" in stdout
+    folder = _programs.cache_dir()
+    assert folder is not None
+    assert {"step", "lift", "initial_fit"} <= {p.name.split("-")[0] for p in folder.iterdir()}
+
+
+def test_warmup_needs_a_camera_and_a_sane_size():
+    code, _, stderr = run_cli("warmup", "--method", "lvm")
+    assert code == 2 and "--intrinsics FILE or --size WxH" in stderr
+    with pytest.raises(SystemExit) as e, contextlib.redirect_stderr(stdio.StringIO()) as err:
+        main(["warmup", "--size", "4x3"])
+    assert e.value.code == 2 and "at least 8x8" in err.getvalue()
