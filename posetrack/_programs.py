@@ -218,22 +218,11 @@ class Program:
         """Make the program for these arguments ready (``jax.ShapeDtypeStruct`` leaves
         allowed). ``background=True`` does it in a daemon thread and returns at once; a call
         that needs the program meanwhile waits for it instead of building it twice."""
-        sig, static, _, tree, avals = self._signature(args)
         if background:
-            threading.Thread(
-                target=self._ensure_quietly, args=(sig, static, tree, avals),
-                name=f"posetrack-{self.name}", daemon=True,
-            ).start()  # fmt: skip
-        else:
-            self._ensure(sig, static, tree, avals)
-
-    def _ensure_quietly(self, *args) -> None:
-        """``_ensure`` in a background thread: a failure is raised where the program is
-        needed (that caller builds it again), not printed by the thread."""
-        try:
-            self._ensure(*args)
-        except Exception:
-            pass
+            prepare_in_background([(self, args)])
+            return
+        sig, static, _, tree, avals = self._signature(args)
+        self._ensure(sig, static, tree, avals)
 
     def wait_traced(self, *args, timeout: float | None = None) -> None:
         """Wait until the program for these arguments has been traced (or read from the
@@ -373,6 +362,22 @@ def _write(path: Path, exported, out_tree) -> bool:
         return True
     except Exception:
         return False
+
+
+def prepare_in_background(jobs: Sequence[tuple[Program, tuple]]) -> None:
+    """``program.prepare(*args)`` for each ``(program, args)``, one after another, in a daemon
+    thread; returns at once. A caller that needs one of them meanwhile waits for it. A failure
+    ends the thread quietly: it is raised where the program is needed (that caller builds it
+    again), not printed by the thread."""
+
+    def work():
+        for prog, args in jobs:
+            try:
+                prog.prepare(*args)
+            except Exception:
+                return
+
+    threading.Thread(target=work, name="posetrack-prepare", daemon=True).start()
 
 
 def program(

@@ -428,8 +428,6 @@ def smooth_window_program(
     return P, jax.vmap(lambda p: body.keypoints(shape, p))(P)
 
 
-
-
 class OnlineWindow(eqx.Module):
     """The online motion model's memory: the newest ``online_window`` frames (oldest first),
     kept on the device between frames."""
@@ -557,7 +555,7 @@ def online_update(
     return window, pose, body.keypoints(shape, pose)
 
 
-online_update_jit = program("online_update", static_argnums=(0, 8))(online_update)
+online_update_program = program("online_update", static_argnums=(0, 8))(online_update)
 
 
 @program("online_flush", static_argnums=(0,))

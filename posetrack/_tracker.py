@@ -9,7 +9,6 @@ re-initialising when observations return.
 from __future__ import annotations
 
 import dataclasses
-import threading
 import time
 from collections.abc import Callable, Sequence
 from functools import partial
@@ -36,13 +35,13 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._programs import Program, program
+from ._programs import Program, prepare_in_background, program
 from ._sides import SideLabeller, SideSettings
 from ._smooth import (
     OnlineWindow,
     SmoothSettings,
     online_flush,
-    online_update_jit,
+    online_update_program,
     smooth_sequence,
     smooth_window_program,
 )
@@ -91,20 +90,6 @@ def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks
         params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
     )
     return res, body.keypoints(shape, res.params)
-
-
-def _in_thread(jobs) -> None:
-    """Prepare ``[(program, args), ...]`` one after another in a daemon thread (a caller that
-    needs one of them meanwhile waits for it, see ``Program``)."""
-
-    def work():
-        for prog, args in jobs:
-            try:
-                prog.prepare(*args)
-            except Exception:  # the frame that needs it compiles it again and raises there
-                return
-
-    threading.Thread(target=work, name="posetrack-prepare", daemon=True).start()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -399,7 +384,7 @@ class Tracker:
         else:
             kps, params, valid = est.keypoints3d, est.params, True
         t0 = time.perf_counter()
-        self._window, pose, pose_kps = online_update_jit(
+        self._window, pose, pose_kps = online_update_program(
             self.motion, self.shape, jnp.asarray(self.fps, _DTYPE), self._window,
             jnp.asarray(kps, _DTYPE), jnp.asarray(conf, _DTYPE), jnp.asarray(params, _DTYPE),
             jnp.asarray(valid), self.lag,
@@ -447,6 +432,8 @@ class Tracker:
         (:func:`posetrack.enable_cache`, as the command line does), a later process reads the
         programs from disk instead of tracing and compiling them (``posetrack warmup``).
         """
+        if not isinstance(step, Program):  # replaced (tests count its traces): compile on use
+            return
         f32 = partial(jax.ShapeDtypeStruct, dtype=_DTYPE)
         N = self.config.n
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
@@ -472,13 +459,11 @@ class Tracker:
                 jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)),
             )))  # fmt: skip
         elif self.mode == "online":
-            later.append((online_update_jit, (
+            later.append((online_update_program, (
                 self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
                 f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
             )))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
-        if not isinstance(step, Program):  # replaced (tests count its traces): compile on use
-            return
         if not background:
             for prog, args in (*jobs, (step, step_args), *later):
                 prog.prepare(*args)
@@ -486,9 +471,9 @@ class Tracker:
         # The step (the big program), then the motion model (the first frames do not need
         # it) in one thread. Tracing holds the interpreter, so the small set-up programs start
         # once the step is traced; their compilation then runs beside the step's.
-        _in_thread([(step, step_args), *later])
+        prepare_in_background([(step, step_args), *later])
         step.wait_traced(*step_args)
-        _in_thread(jobs)
+        prepare_in_background(jobs)
 
     def _lift(self, depth_m, kp, conf) -> Landmarks:
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)

@@ -11,7 +11,7 @@ from pathlib import Path
 import jax
 import pytest
 
-from posetrack.app._cli import enable_compilation_cache
+import posetrack
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
@@ -33,7 +33,7 @@ def pytest_configure(config):
     else:
         path = "off"
     os.environ["POSETRACK_CACHE_DIR"] = path
-    enable_compilation_cache()  # what the command line does, now for every test
+    posetrack.enable_cache()  # what the command line does, now for every test
 
 
 _DEFAULT_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"

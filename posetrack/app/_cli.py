@@ -79,11 +79,30 @@ def _detected(detect_keypoints, rgb, n: int, *, progress: bool):
     return kp2d, conf
 
 
+def _tracker_config(args):
+    """``TrackerConfig.recommended`` for ``--method`` / ``--hypotheses`` (``track``, ``warmup``)."""
+    from .._config import TrackerConfig
+
+    if args.hypotheses is not None and args.hypotheses < 1:
+        raise ValueError(f"--hypotheses must be at least 1, got {args.hypotheses}")
+    overrides = {}
+    if args.hypotheses is not None:
+        if args.method == "lvm":
+            print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
+        else:
+            overrides["num_hypotheses"] = args.hypotheses
+    return TrackerConfig.recommended(args.method, **overrides)
+
+
+def _mode(args) -> str:
+    """The motion-model mode of ``--online`` / ``--per-frame`` (``track``, ``warmup``)."""
+    return "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
+
+
 def _track(args) -> int:
     import numpy as np
 
     from .. import io
-    from .._config import TrackerConfig
     from .._sides import SideSettings
     from .._tracker import Tracker
     from ._export import check_output_dir, save_results, status_counts
@@ -105,8 +124,7 @@ def _track(args) -> int:
             "--keypoints DIR is required (OpenPose JSON), or --detect with --rgb to detect "
             f"keypoints with the built-in detector ({_DETECT_INSTALL})"
         )
-    if args.hypotheses is not None and args.hypotheses < 1:
-        raise ValueError(f"--hypotheses must be at least 1, got {args.hypotheses}")
+    config = _tracker_config(args)  # bad --hypotheses fails before loading
     if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
         raise ValueError(f"--fps must be positive, got {args.fps}")
     out = check_output_dir(args.out)  # before the long part: a bad --out fails now
@@ -138,13 +156,6 @@ def _track(args) -> int:
     conf = np.where(rec.observed.reshape((-1,) + (1,) * (conf.ndim - 1)), conf, np.float32(0))
     t_detected = time.perf_counter()
 
-    overrides = {}
-    if args.hypotheses is not None:
-        if args.method == "lvm":
-            print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
-        else:
-            overrides["num_hypotheses"] = args.hypotheses
-    config = TrackerConfig.recommended(args.method, **overrides)
     w, h = rec.intrinsics.width, rec.intrinsics.height
     print(
         f"tracking {n} frames ({w}x{h}) with {config.method}, {config.n} hypothes"
@@ -152,7 +163,7 @@ def _track(args) -> int:
         file=sys.stderr,
     )
     fps = args.fps if args.fps is not None else rec.fps  # None: unknown (not written)
-    mode = "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
+    mode = _mode(args)
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
@@ -292,7 +303,6 @@ def _size_arg(text: str) -> tuple[int, int]:
 def _warmup(args) -> int:
     from .. import io
     from .._camera import Intrinsics
-    from .._config import TrackerConfig
     from .._programs import cache_dir
     from .._tracker import Tracker
 
@@ -309,13 +319,7 @@ def _warmup(args) -> int:
     else:
         w, h = args.size
         intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
-    if args.hypotheses is not None and args.hypotheses < 1:
-        raise ValueError(f"--hypotheses must be at least 1, got {args.hypotheses}")
-    overrides = {}
-    if args.hypotheses is not None and args.method != "lvm":
-        overrides["num_hypotheses"] = args.hypotheses
-    config = TrackerConfig.recommended(args.method, **overrides)
-    mode = "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
+    config, mode = _tracker_config(args), _mode(args)
     t0 = time.perf_counter()
     Tracker(intrinsics, config, mode=mode, lag=args.online or 0).prepare()
     print(
@@ -324,6 +328,34 @@ def _warmup(args) -> int:
         f"({time.perf_counter() - t0:.1f} s)"
     )
     return 0
+
+
+def _add_method_options(p: argparse.ArgumentParser) -> None:
+    """``--method`` and ``--hypotheses`` (``track`` and ``warmup``)."""
+    p.add_argument(
+        "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
+        help="tracker variant (default: %(default)s, the recommended MHT_h; the others use "
+        "the paper's best settings)",
+    )  # fmt: skip
+    p.add_argument(
+        "--hypotheses", type=int, metavar="N",
+        help="number of hypotheses (default: 10 for mht_h; the paper's 5 for mht_g, 20 for mht_r)",
+    )  # fmt: skip
+
+
+def _add_mode_options(p: argparse.ArgumentParser) -> None:
+    """``--online [LAG]`` / ``--per-frame`` (``track`` and ``warmup``)."""
+    motion = p.add_mutually_exclusive_group()
+    motion.add_argument(
+        "--online", type=int, nargs="?", const=0, default=None, metavar="LAG",
+        help="causal motion model, as for a live camera: each pose uses only the frames up to "
+        "LAG frames after it (default LAG 0; experimental, see the README). Without this "
+        "flag the motion model smooths over the whole recording (offline)",
+    )  # fmt: skip
+    motion.add_argument(
+        "--per-frame", action="store_true",
+        help="no motion model: every frame on its own (the paper's tracker)",
+    )  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -426,15 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--detect", action="store_true",
         help=f"detect 2D keypoints in --rgb with the built-in detector ({_DETECT_INSTALL})",
     )  # fmt: skip
-    t.add_argument(
-        "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
-        help="tracker variant (default: %(default)s, the recommended MHT_h; the others use "
-        "the paper's best settings)",
-    )  # fmt: skip
-    t.add_argument(
-        "--hypotheses", type=int, metavar="N",
-        help="number of hypotheses (default: 10 for mht_h; the paper's 5 for mht_g, 20 for mht_r)",
-    )  # fmt: skip
+    _add_method_options(t)
     t.add_argument(
         "--depth-scale", type=float, default=1000.0, metavar="S",
         help="depth units per metre (default: %(default)g = millimetres; 5000 for TUM RGB-D)",
@@ -463,17 +487,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="frame rate for the motion model, the BVH and the video (default: the video's, "
         "else 30)",
     )  # fmt: skip
-    motion = t.add_mutually_exclusive_group()
-    motion.add_argument(
-        "--online", type=int, nargs="?", const=0, default=None, metavar="LAG",
-        help="causal motion model, as for a live camera: each pose uses only the frames up to "
-        "LAG frames after it (default LAG 0; experimental, see the README). Without this "
-        "flag the motion model smooths over the whole recording (offline)",
-    )  # fmt: skip
-    motion.add_argument(
-        "--per-frame", action="store_true",
-        help="no motion model: every frame on its own (the paper's tracker)",
-    )  # fmt: skip
+    _add_mode_options(t)
     t.add_argument(
         "--fix-sides", action="store_true",
         help="undo the detector's left/right swaps of the arms and legs before fitting "
@@ -498,32 +512,19 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     w.add_argument("--intrinsics", metavar="FILE", help="the depth camera's intrinsics JSON")
     w.add_argument("--size", type=_size_arg, metavar="WxH", help="or only its image size")
-    w.add_argument(
-        "--method", choices=("lvm", "mht_r", "mht_g", "mht_h"), default="mht_h",
-        help="tracker variant (default: %(default)s)",
-    )  # fmt: skip
-    w.add_argument("--hypotheses", type=int, metavar="N", help="number of hypotheses")
-    wm = w.add_mutually_exclusive_group()
-    wm.add_argument("--online", type=int, nargs="?", const=0, default=None, metavar="LAG")
-    wm.add_argument("--per-frame", action="store_true")
+    _add_method_options(w)
+    _add_mode_options(w)
     w.set_defaults(func=_warmup)
     return p
-
-
-def enable_compilation_cache() -> None:
-    """Keep compiled programs on disk between runs (``posetrack.enable_cache``): tens of
-    seconds saved per run. ``POSETRACK_CACHE_DIR`` chooses the folder (default
-    ``~/.cache/posetrack``); ``off`` disables it."""
-    from .._programs import enable_cache
-
-    enable_cache()
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code (0 ok, 1 system error, 2 bad input,
     130 interrupted)."""
     args = build_parser().parse_args(argv)
-    enable_compilation_cache()
+    from .._programs import enable_cache
+
+    enable_cache()  # POSETRACK_CACHE_DIR, default ~/.cache/posetrack; "off" disables it
     if os.environ.get("POSETRACK_TRACEBACK"):
         return args.func(args)
     try:
