@@ -9,7 +9,9 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
   detector's left/right labels taken as they come);
 * MHT_h per-frame + a Gaussian filter over time (sigma = 2 frames): the post-hoc floor;
 * MHT_h ``mode="offline"`` (the default of ``posetrack track``): the motion model over the
-  whole recording; and the same with the opt-in left/right relabelling of the detections
+  whole recording, with the body shape refined against the depth of 8 frames; the same with
+  the shape measured between lifted keypoints only (``refine=None``, ``--no-refine-shape``:
+  "kp shape"); and with the opt-in left/right relabelling of the detections
   (``sides=pt.SideSettings()``, ``--fix-sides``: "+ L/R");
 * MHT_h ``mode="online"`` with lag 0 and 4 (causal), and lag 0 + L/R.
 
@@ -42,7 +44,7 @@ from posetrack.app import machine_summary
 MOTIONS = ("walk", "box", "reach", "wave", "squat", "turn", "walk_across", "idle")
 ROWS = (
     "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
-    "MHT_h offline + L/R", "MHT_h online L=0", "MHT_h online L=4", "MHT_h online L=0 + L/R",
+    "MHT_h offline, kp shape", "MHT_h offline + L/R", "MHT_h online L=0", "MHT_h online L=4", "MHT_h online L=0 + L/R",
 )  # fmt: skip
 
 
@@ -59,6 +61,7 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
     out["LVM"] = lvm.keypoints3d
     lr = pt.SideSettings()
     out["MHT_h offline + L/R"] = pt.track(*args, seq.intrinsics, sides=lr).keypoints3d
+    out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
     out["MHT_h online L=0 + L/R"] = pt.track(
         *args, seq.intrinsics, mode="online", sides=lr
     ).keypoints3d
@@ -67,7 +70,10 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
     out["MHT_h per-frame"] = off.per_frame_keypoints3d
     out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
     out["MHT_h offline"] = off.keypoints3d
-    cost = {"step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames}
+    cost = {
+        "step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames,
+        "refine_s": tr.refine_s,
+    }  # fmt: skip
     for lag in (0, 4):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
         out[f"MHT_h online L={lag}"] = on_tr.run(*args).keypoints3d
@@ -153,6 +159,8 @@ def main() -> int:
         "offline_ms_per_frame_min": float(np.min([c["offline_ms"] for c in costs])),
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
+        # Body shape refinement: once per recording (the first clip's includes compilation).
+        "refine_s_median": float(np.median([c["refine_s"] for c in costs])),
     }
     cost["offline_total_over_step"] = (step + cost["offline_ms_per_frame"]) / step
     cost["online_total_over_step"] = (cost["online_step_ms"] + cost["online_ms_per_frame"]) / step
@@ -160,12 +168,12 @@ def main() -> int:
     for cond in summary:
         n_c = sum(c["occlusion"] == (0 if cond == "clean" else 2) for c in per_clip)
         print(f"\n{cond} ({n_c} clips)")
-        print(f"{'':22s} {'D mm':>6s} {'cover':>6s} {'C100':>6s} {'accel':>6s} {'swaps':>6s} "
+        print(f"{'':24s} {'D mm':>6s} {'cover':>6s} {'C100':>6s} {'accel':>6s} {'swaps':>6s} "
               f"{'worst/LVM':>9s} {'worst D':>7s} {'jitter':>6s}")  # fmt: skip
         for name, v in summary[cond].items():
             jit = "" if v["jitter_mm"] is None else f"{v['jitter_mm']:6.1f}"
             print(
-                f"{name:22s} {v['D_mm']:6.1f} {v['coverage']:6.3f} {v['C_100mm']:6.3f} "
+                f"{name:24s} {v['D_mm']:6.1f} {v['coverage']:6.3f} {v['C_100mm']:6.3f} "
                 f"{v['accel_mm']:6.1f} {v['swap_frames']:6d} {v['worst_vs_LVM']:9.2f} "
                 f"{v['worst_clip_D_mm']:7.1f} {jit:>6s}"
             )
@@ -176,7 +184,8 @@ def main() -> int:
         f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
         f" ms the least over clips ({cost['offline_total_over_step']:.2f}x the step, from the "
         f"median); online model +{cost['online_ms_per_frame']:.1f} ms "
-        f"({cost['online_total_over_step']:.2f}x)"
+        f"({cost['online_total_over_step']:.2f}x); body shape refinement "
+        f"{cost['refine_s_median']:.1f} s per recording (median)"
     )
     result = {
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,

@@ -143,15 +143,19 @@ def consensus_masks(
     params: Float[Array, "frame 43"],
     landmarks: Landmarks,
     distance: float,
+    keypoints: Float[Array, "frame kpt 3"] | None = None,
 ) -> tuple[Bool[Array, "frame kpt"], Bool[Array, "frame kpt"]]:
     """Per frame, the landmarks within ``distance`` of the pose's keypoints (3D, and 2D where
-    the keypoint has no depth), as in the tracker's consensus refit."""
+    the keypoint has no depth), as in the tracker's consensus refit. ``keypoints``: the
+    poses' keypoints when known (default: computed from ``params`` with ``shape``)."""
+    if keypoints is None:
+        keypoints = jax.vmap(lambda p: body.keypoints(shape, p))(params)
 
-    def one(p, lm):
-        use3d, use2d = consensus_set(lm, body.keypoints(shape, p), intrinsics, distance)
+    def one(k, lm):
+        use3d, use2d = consensus_set(lm, k, intrinsics, distance)
         return use3d, use2d & ~lm.has_depth
 
-    return jax.vmap(one)(params, landmarks)
+    return jax.vmap(one)(keypoints, landmarks)
 
 
 def _acceleration_weights(valid: Bool[Array, " frame"]):
@@ -219,6 +223,7 @@ def smooth_window(
     fps: Float[Array, ""],
     pose_confidence: Float[Array, "frame kpt"],
     iterations: int | None = None,
+    targets: Float[Array, "frame kpt 3"] | None = None,
 ) -> Float[Array, "frame 43"]:
     """Fit the poses of a window of frames jointly (see the module docstring). Jittable.
 
@@ -236,6 +241,10 @@ def smooth_window(
             in the data term (the tracker's per-keypoint confidence: a keypoint inferred
             rather than observed pulls less, and the prior carries it).
         iterations: LM iterations (static; default ``settings.iterations``).
+        targets: (frame, kpt, 3) the tracker's own keypoints, metres (default: those of
+            ``params`` with ``shape``). Given apart when ``shape`` is not the shape the
+            per-frame poses were fitted with (``Tracker(refine=...)``): the same pose angles
+            with other bone lengths would put the limbs' ends elsewhere.
 
     Returns:
         (frame, 43) smoothed poses, unit quaternions with w >= 0.
@@ -257,7 +266,8 @@ def smooth_window(
     # An invalid frame has no data; its regularisers alone keep it where it is.
     frame_args = (landmarks, u3 & valid[:, None], u2 & valid[:, None], mpp, start)
 
-    targets = jax.vmap(lambda p: body.keypoints(shape, p))(start)
+    if targets is None:
+        targets = jax.vmap(lambda p: body.keypoints(shape, p))(start)
     frame_args = (*frame_args, targets, jnp.asarray(pose_confidence) * valid[:, None])
 
     def data_res(p, a):
@@ -350,6 +360,7 @@ def smooth_sequence(
     valid: np.ndarray,
     *,
     fps: float,
+    keypoints: np.ndarray,
     pose_confidence: np.ndarray | None = None,
 ) -> np.ndarray:
     """The offline smoother over a whole recording: :func:`smooth_window` on overlapping
@@ -361,6 +372,9 @@ def smooth_sequence(
         landmarks: the T frames' landmarks, NumPy or JAX arrays with a leading frame axis.
         valid: (T,) frames with an estimate.
         fps: frame rate, Hz.
+        keypoints: (T, 18, 3) the tracker's per-frame keypoints, metres (any values where
+            ``valid`` is False): the consensus reference and the anchor of the data term
+            (``targets`` of :func:`smooth_window`).
 
     Returns:
         ``(params, keypoints)``: (T, 43) NumPy float32, frames that are not ``valid``
@@ -372,6 +386,7 @@ def smooth_sequence(
     W, step = settings.window, settings.window - settings.overlap
     half = settings.overlap // 2
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
+    kps_in = np.where(valid[:, None, None], np.nan_to_num(np.asarray(keypoints, np.float32)), 0.0)
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
     conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
     out = params.copy()
@@ -390,7 +405,7 @@ def smooth_sequence(
         smoothed, kps = smooth_window_program(
             settings, shape, intrinsics, jnp.asarray(pad(safe)),
             jax.tree.map(lambda x: jnp.asarray(pad(x)), lm), jnp.asarray(pad(valid)), fps_arr,
-            jnp.asarray(pad(conf)),
+            jnp.asarray(pad(conf)), jnp.asarray(pad(kps_in)),
         )  # fmt: skip
         smoothed, kps = np.asarray(smoothed)[:n], np.asarray(kps)[:n]
         first = 0 if start == 0 else half
@@ -415,16 +430,18 @@ def smooth_window_program(
     valid: Bool[Array, " frame"],
     fps: Float[Array, ""],
     pose_confidence: Float[Array, "frame kpt"],
+    keypoints: Float[Array, "frame kpt 3"],
 ) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
     """One window of :func:`smooth_sequence` as one compiled program: each frame's consensus
     landmarks, :func:`smooth_window`, and the keypoints of the smoothed poses (of the valid
     frames; the others' are those of ``params``). Any recording length reuses it."""
     use3d, use2d = consensus_masks(
-        shape, intrinsics, params, landmarks, settings.consensus_distance
+        shape, intrinsics, params, landmarks, settings.consensus_distance, keypoints=keypoints
     )
     P = smooth_window(
-        settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps, pose_confidence
-    )
+        settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps,
+        pose_confidence, targets=keypoints,
+    )  # fmt: skip
     return P, jax.vmap(lambda p: body.keypoints(shape, p))(P)
 
 

@@ -33,9 +33,11 @@ from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
+from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
 from ._programs import Program, prepare_in_background, program
+from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import SideLabeller, SideSettings
 from ._smooth import (
     OnlineWindow,
@@ -51,6 +53,9 @@ _DTYPE = jnp.float32
 
 #: The pose pushed into the online window for a frame outside any track (never published).
 _NO_POSE = body.facing_camera_params_np(2.5)
+
+#: Fewer tracked frames than this and ``refine`` is skipped (the shape stays as estimated).
+_MIN_REFINE_FRAMES = 3
 
 #: Frame status codes (also the strings written to files).
 TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
@@ -262,6 +267,14 @@ class Tracker:
     or frame by frame with :meth:`update`. The body dimensions are estimated from the first
     ``config.shape_frames`` frames of :meth:`run` unless ``shape`` is given.
 
+    **Body shape from depth** (``mode="offline"``; ``refine="auto"``, the default, unless
+    ``shape`` is given): after the forward pass, :func:`refine_shape` refits the body
+    dimensions and the poses of 8 tracked frames spread over the recording against their depth
+    (:meth:`ShapeFitSettings.tracking`), and the motion model then fits every frame with the
+    refined shape (the per-frame poses' keypoints as its anchor). Where a joint sits inside the
+    body, the shoulders above all, then follows the person rather than the default adult.
+    ``refine=None`` turns it off; :attr:`refine_report` says what it changed.
+
     **Several people in view.** Keypoints may list P people per frame (``(P, 18, 2)``, any
     order, P varying from frame to frame). The tracker chooses one person when it first
     initialises (``person``: ``"auto"`` = the most complete detection, the closest of those;
@@ -298,6 +311,7 @@ class Tracker:
         motion: SmoothSettings = SmoothSettings(),
         fps: float = 30.0,
         sides: SideSettings | None = None,
+        refine: ShapeFitSettings | str | None = "auto",
     ):
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
@@ -316,6 +330,22 @@ class Tracker:
         if sides is not None and not isinstance(sides, SideSettings):
             raise TypeError(f"Tracker: sides must be posetrack.SideSettings or None, got {sides!r}")
         self.sides: SideSettings | None = sides
+        if isinstance(refine, str) and refine == "auto":
+            auto = mode == "offline" and shape is None
+            refine = ShapeFitSettings.tracking() if auto else None
+        if refine is not None and not isinstance(refine, ShapeFitSettings):
+            raise TypeError(
+                f"Tracker: refine must be 'auto', posetrack.ShapeFitSettings or None, got "
+                f"{refine!r}"
+            )
+        if refine is not None and mode != "offline":
+            raise ValueError(
+                f"Tracker: refine (body shape from depth) needs mode='offline', got mode={mode!r}"
+            )
+        self.refine: ShapeFitSettings | None = refine
+        self.refine_report: dict | None = None
+        """After :meth:`run` with ``refine``: :func:`refine_shape`'s report (``None`` when it
+        did not run)."""
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
                 f"Tracker: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
@@ -358,6 +388,7 @@ class Tracker:
         self._step_times: list[float] = []
         self._motion_times: list[float] = []
         self.smooth_s = 0.0
+        self.refine_s = 0.0
         self._prepare_started = False
         self._forget_person()
         self._reset_motion()
@@ -456,8 +487,12 @@ class Tracker:
             window_lm = jax.tree.map(lambda a: jax.ShapeDtypeStruct((W, *a.shape), a.dtype), lm)
             later.append((smooth_window_program, (
                 self.motion, shape, intr, f32((W, 43)), window_lm,
-                jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)),
+                jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
             )))  # fmt: skip
+            if self.refine is not None and not self.refine.crop:
+                later.extend(refine_programs(
+                    self._refine_settings(), self.config, shape, intr, self.refine.frames
+                ))  # fmt: skip
         elif self.mode == "online":
             later.append((online_update_program, (
                 self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
@@ -683,6 +718,7 @@ class Tracker:
             return None, LOST
         if self._state is None and not self._initialize(depth_fit, kp, conf):
             return None, NO_OBSERVATION
+        self._depth_fit = depth_fit  # run() keeps a few for the body-shape refinement
         t0 = time.perf_counter()
         state, est = step(
             self.config, self.shape, self.intrinsics, self._floor, self._state, depth_fit, kp, conf
@@ -756,8 +792,16 @@ class Tracker:
         kp2 = np.zeros((T, 18, 2), np.float32)
         lm_conf = np.zeros((T, 18), np.float32)
         self._reset_motion()
+        # Body shape from depth: the best-observed tracked frame of each of F equal stretches
+        # of the recording (its depth as fitted: other people removed) is kept for refine_shape.
+        n_keep = 0 if self.refine is None else min(self.refine.frames, T)
+        kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         for t in range(T):
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
+            if n_keep and st == TRACKED:
+                n3d, stretch = int(np.sum(np.asarray(est.landmarks.has_depth))), t * n_keep // T
+                if n3d > kept.get(stretch, (-1,))[0]:
+                    kept[stretch] = (n3d, t, self._depth_fit)
             if self.mode == "online" and self.lagged is not None and self.lag > 0:
                 i, p_lag, k_lag = self.lagged
                 params[i], kp3[i] = p_lag, k_lag
@@ -805,6 +849,8 @@ class Tracker:
                 params[self._window_frames[j]], kp3[self._window_frames[j]] = sm[j], sk[j]
         if self.mode == "offline":
             valid = np.isfinite(kp3).all(axis=(1, 2))
+            if n_keep and len(kept) >= _MIN_REFINE_FRAMES:
+                lm3 = self._refine_shape(list(kept.values()), params, kp2, lm_conf, lm3, has_d)
             if valid.any():
                 per_frame = kp3.copy()
                 lms = Landmarks(
@@ -814,7 +860,7 @@ class Tracker:
                 t0 = time.perf_counter()
                 smoothed, smoothed_kps = smooth_sequence(
                     self.motion, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
-                    fps=self.fps, pose_confidence=conf_out,
+                    fps=self.fps, keypoints=kp3, pose_confidence=conf_out,
                 )  # fmt: skip
                 params = np.where(valid[:, None], smoothed, params)
                 kp3 = np.where(valid[:, None, None], smoothed_kps, kp3)
@@ -846,6 +892,35 @@ class Tracker:
             exchanged=exchanged,
             mode=self.mode,
         )
+
+    def _refine_settings(self) -> ShapeFitSettings:
+        """:attr:`refine`, its image no larger than the sensor's."""
+        H, W = self.intrinsics.shape
+        return dataclasses.replace(
+            self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H)
+        )
+
+    def _refine_shape(self, kept, params, kp2, lm_conf, lm3, has_d) -> np.ndarray:
+        """Refine :attr:`shape` on the ``kept`` frames ``(n3d, t, depth metres)`` with
+        :func:`refine_shape` (their poses as the start). Returns the landmarks ``lm3`` moved
+        along their rays by the change of the surface offsets the new shape implies."""
+        t = np.asarray([k[1] for k in kept])
+        t0 = time.perf_counter()
+        refined, report = refine_shape(
+            self.shape, params[t], np.stack([k[2] for k in kept]), kp2[t], lm_conf[t],
+            self.intrinsics, settings=self._refine_settings(), config=self.config,
+            floor=np.asarray(self._floor),
+        )  # fmt: skip
+        report["frames_used"] = t
+        self.refine_report = report
+        self.refine_s = time.perf_counter() - t0
+        if self.config.surface_offset:
+            moved = np.asarray(surface_offsets(refined) - surface_offsets(self.shape))
+            norm = np.linalg.norm(lm3, axis=-1, keepdims=True)
+            ray = np.divide(lm3, norm, out=np.zeros_like(lm3), where=norm > 0)
+            lm3 = np.where(has_d[..., None], lm3 + moved[None, :, None] * ray, lm3)
+        self.shape = refined
+        return lm3
 
     def _shape_frames(self, depths, keypoints2d, confidence, n: int) -> tuple[list, list, list]:
         """The followed person's observations in the first ``n`` frames, for
@@ -883,6 +958,7 @@ def track(
     motion: SmoothSettings = SmoothSettings(),
     fps: float = 30.0,
     sides: SideSettings | None = None,
+    refine: ShapeFitSettings | str | None = "auto",
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
@@ -891,7 +967,7 @@ def track(
     undoes the detector's left/right swaps (:class:`SideSettings`; ``None``, the default: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
-        lag=lag, motion=motion, fps=fps, sides=sides,
+        lag=lag, motion=motion, fps=fps, sides=sides, refine=refine,
     ).run(depths, keypoints2d, confidence, progress=progress)  # fmt: skip
 
 

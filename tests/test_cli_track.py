@@ -195,6 +195,12 @@ def test_summary_and_printout(cli, poses):
     assert "note: intrinsics: plain layout, 320x240" in cli.stderr
     assert "note: keypoints: COCO-18" in cli.stderr
     assert summary["inputs"]["fix_sides"] is False and summary["sides_exchanged"] is None
+    # Offline (the default) refines the body shape against the depth of a few frames.
+    refit = summary["shape_refinement"]
+    assert summary["inputs"]["refine_shape"] is True and refit["refined"] is True
+    assert len(refit["refined_on_frames"]) >= 3 and max(refit["refined_on_frames"]) < N_FRAMES
+    assert all(0.6 < v < 1.6 for k, v in refit["factors"].items() if k != "shoulder_drop")
+    assert "body shape refined against the depth of" in cli.stdout
 
 
 def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
@@ -211,7 +217,7 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
         doc["people"][0]["pose_keypoints_2d"] = [v for k in kp for v in k]
         f.write_text(json.dumps(doc))
     runs = {}
-    for name, extra in (("fix", ("--fix-sides",)), ("default", ())):
+    for name, extra in (("fix", ("--fix-sides", "--no-refine-shape")), ("default", ())):
         args = track_args(rec, tmp_path / name, "--no-video", *extra)
         args[args.index("--keypoints") + 1] = swapped
         code, stdout, stderr = run_cli(*args)
@@ -220,6 +226,7 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
     summary, stdout = runs["fix"]
     assert summary["sides_exchanged"]["arms"] >= 6 and summary["sides_exchanged"]["legs"] == 0
     assert "left/right swaps of the detector undone (frames): arms" in stdout
+    assert summary["shape_refinement"]["refined"] is False and "body shape" not in stdout
     summary, stdout = runs["default"]
     assert summary["sides_exchanged"] is None and "undone" not in stdout
 

@@ -204,6 +204,7 @@ def modes(clip):
     return {
         "per-frame": pt.track(*args, mode="per-frame"),
         "offline": pt.track(*args),
+        "offline, kp shape": pt.track(*args, refine=None),
         "online": pt.track(*args, mode="online", lag=2),
         "online0": pt.track(*args, mode="online", lag=0),
     }
@@ -219,6 +220,53 @@ def test_offline_is_the_per_frame_track_smoothed(clip, modes):
         per.keypoints3d, gt
     )
     assert pt.accuracy(off.keypoints3d, gt).mean_mm < pt.accuracy(per.keypoints3d, gt).mean_mm
+
+
+def test_offline_refines_the_body_shape_and_places_the_shoulders_better(clip, modes):
+    off, kp_shape, per = modes["offline"], modes["offline, kp shape"], modes["per-frame"]
+    # Landmark-based shape for the per-frame pass and refine=None; refined against the depth
+    # by default (offline only).
+    assert kp_shape.shape.to_dict() == per.shape.to_dict()
+    changed = [k for k, v in off.shape.to_dict().items() if abs(v - per.shape.to_dict()[k]) > 1e-4]
+    assert len(changed) >= 5, changed
+    np.testing.assert_array_equal(off.per_frame_keypoints3d, kp_shape.per_frame_keypoints3d)
+    gt = clip.joints3d
+    shoulders = (2, 5)
+    err = {
+        name: float(np.nanmean(pt.joint_errors(modes[name].keypoints3d, gt, joints=shoulders)))
+        for name in ("offline", "offline, kp shape")
+    }
+    assert err["offline"] < err["offline, kp shape"], err
+    assert pt.accuracy(off.keypoints3d, gt).mean_mm < pt.accuracy(kp_shape.keypoints3d, gt).mean_mm
+
+
+def test_prepare_builds_the_refinement_programs_the_run_uses(clip, modes):
+    """``Tracker.prepare`` (and ``posetrack warmup``) build the refinement's two programs from
+    argument signatures alone; they must be the very programs a run calls, or a warm start
+    would compile again. The default offline run (``modes``) built them: prepare adds none."""
+    from posetrack import _shapefit
+
+    progs = (_shapefit._observe_frames, _shapefit.refine_shape_core)
+    assert modes["offline"] is not None
+    before = [p._cache_size() for p in progs]
+    assert min(before) >= 1
+    pt.Tracker(clip.intrinsics).prepare()
+    assert [p._cache_size() for p in progs] == before
+
+
+def test_shape_refinement_is_offline_only_and_checked(clip):
+    tr = pt.Tracker(clip.intrinsics)
+    assert tr.refine == pt.ShapeFitSettings.tracking()
+    assert pt.Tracker(clip.intrinsics, mode="online").refine is None
+    assert pt.Tracker(clip.intrinsics, mode="per-frame").refine is None
+    # A shape given by the caller is kept as given.
+    assert pt.Tracker(clip.intrinsics, shape=pt.BodyShape.default()).refine is None
+    with pytest.raises(ValueError, match="offline"):
+        pt.Tracker(clip.intrinsics, mode="online", refine=pt.ShapeFitSettings())
+    with pytest.raises(TypeError, match="refine"):
+        pt.Tracker(clip.intrinsics, refine="yes")
+    with pytest.raises(ValueError, match="frames"):
+        pt.ShapeFitSettings(frames=0)
 
 
 def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(modes):

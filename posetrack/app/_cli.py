@@ -168,6 +168,7 @@ def _track(args) -> int:
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
         sides=SideSettings() if args.fix_sides else None,
+        refine=None if args.no_refine_shape else "auto",
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -200,10 +201,12 @@ def _track(args) -> int:
             "mode": mode,
             "lag": args.online or 0,
             "fix_sides": args.fix_sides,
+            "refine_shape": not args.no_refine_shape,
         },
         "notes": notes,
         "person": person,
         "sides_exchanged": undone,
+        "shape_refinement": _shape_summary(tracker),
         "timing": {
             "load_s": t_loaded - t_start,
             "detect_s": t_detected - t_loaded if args.detect else None,
@@ -225,6 +228,14 @@ def _track(args) -> int:
         f"{counts['no_observation']} without observation; mean Delta {mean_delta} "
         f"(tracked frames)"
     )
+    rep = tracker.refine_report
+    if rep is not None:
+        scaled = {k: v for k, v in rep["factors"].items() if k != "shoulder_drop"}
+        top = sorted(scaled, key=lambda k: -abs(np.log(scaled[k])))[:3]
+        print(
+            f"body shape refined against the depth of {len(rep['frames_used'])} frames "
+            f"({tracker.refine_s:.1f} s): " + ", ".join(f"{k} x{scaled[k]:.2f}" for k in top)
+        )
     if undone and any(undone.values()):
         listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
         print(f"left/right swaps of the detector undone (frames): {listed}")
@@ -321,13 +332,27 @@ def _warmup(args) -> int:
         intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
     config, mode = _tracker_config(args), _mode(args)
     t0 = time.perf_counter()
-    Tracker(intrinsics, config, mode=mode, lag=args.online or 0).prepare()
+    refine = None if args.no_refine_shape else "auto"
+    Tracker(intrinsics, config, mode=mode, lag=args.online or 0, refine=refine).prepare()
     print(
         f"warmup: {config.method}, {config.n} hypothes{'is' if config.n == 1 else 'es'}, "
         f"{intrinsics.width}x{intrinsics.height}, {mode}: ready in {folder.parent} "
         f"({time.perf_counter() - t0:.1f} s)"
     )
     return 0
+
+
+def _shape_summary(tracker) -> dict:
+    """``summary.json``'s ``shape_refinement``: whether the body dimensions (``shape``) were
+    refined against the depth, by what factor (``shoulder_drop``: metres added) and on which
+    frames (indices into the recording)."""
+    rep = tracker.refine_report
+    return {
+        "refined": rep is not None,
+        "factors": None if rep is None else {k: round(v, 4) for k, v in rep["factors"].items()},
+        "refined_on_frames": None if rep is None else [int(t) for t in rep["frames_used"]],
+        "refine_s": None if rep is None else round(tracker.refine_s, 2),
+    }
 
 
 def _add_method_options(p: argparse.ArgumentParser) -> None:
@@ -355,6 +380,12 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     motion.add_argument(
         "--per-frame", action="store_true",
         help="no motion model: every frame on its own (the paper's tracker)",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-refine-shape", action="store_true",
+        help="offline: keep the body dimensions measured between lifted keypoints instead of "
+        "refining them against the depth of 8 frames (saves about 3 s, costs accuracy; see "
+        "the README)",
     )  # fmt: skip
 
 
