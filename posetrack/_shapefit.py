@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
 import time
+from functools import partial
 
 import equinox as eqx
 import jax

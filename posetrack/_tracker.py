@@ -798,10 +798,6 @@ class Tracker:
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         for t in range(T):
             est, st = self.update(depths[t], keypoints2d[t], confidence[t])
-            if n_keep and st == TRACKED:
-                n3d, stretch = int(np.sum(np.asarray(est.landmarks.has_depth))), t * n_keep // T
-                if n3d > kept.get(stretch, (-1,))[0]:
-                    kept[stretch] = (n3d, t, self._depth_fit)
             if self.mode == "online" and self.lagged is not None and self.lag > 0:
                 i, p_lag, k_lag = self.lagged
                 params[i], kp3[i] = p_lag, k_lag
@@ -837,6 +833,10 @@ class Tracker:
             kp3[t] = np.asarray(est.keypoints3d)
             delta[t] = float(est.delta)
             conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
+            if n_keep and st == TRACKED:
+                n3d, stretch = int(has_d[t].sum()), t * n_keep // T
+                if n3d > kept.get(stretch, (-1,))[0]:
+                    kept[stretch] = (n3d, t, self._depth_fit)
         per_frame = None
         if self.mode == "online" and self.lag > 0:
             # The newest frames' smoothed poses were never lagged out: smooth the last window.

@@ -99,6 +99,11 @@ def _mode(args) -> str:
     return "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
 
 
+def _refine(args) -> str | None:
+    """The tracker's ``refine`` for ``--no-refine-shape`` (``track``, ``warmup``)."""
+    return None if args.no_refine_shape else "auto"
+
+
 def _track(args) -> int:
     import numpy as np
 
@@ -168,7 +173,7 @@ def _track(args) -> int:
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
         sides=SideSettings() if args.fix_sides else None,
-        refine=None if args.no_refine_shape else "auto",
+        refine=_refine(args),
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -332,8 +337,7 @@ def _warmup(args) -> int:
         intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
     config, mode = _tracker_config(args), _mode(args)
     t0 = time.perf_counter()
-    refine = None if args.no_refine_shape else "auto"
-    Tracker(intrinsics, config, mode=mode, lag=args.online or 0, refine=refine).prepare()
+    Tracker(intrinsics, config, mode=mode, lag=args.online or 0, refine=_refine(args)).prepare()
     print(
         f"warmup: {config.method}, {config.n} hypothes{'is' if config.n == 1 else 'es'}, "
         f"{intrinsics.width}x{intrinsics.height}, {mode}: ready in {folder.parent} "
@@ -369,7 +373,8 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
 
 
 def _add_mode_options(p: argparse.ArgumentParser) -> None:
-    """``--online [LAG]`` / ``--per-frame`` (``track`` and ``warmup``)."""
+    """``--online [LAG]`` / ``--per-frame`` and ``--no-refine-shape`` (``track`` and
+    ``warmup``)."""
     motion = p.add_mutually_exclusive_group()
     motion.add_argument(
         "--online", type=int, nargs="?", const=0, default=None, metavar="LAG",
