@@ -20,7 +20,7 @@ from posetrack.app._export import (
     bvh_from_result,
     save_results,
 )
-from posetrack.app._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, write_video
+from posetrack.app._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, video_codec, write_video
 from posetrack.app._viz import GREEN, RED
 
 N_FRAMES = 16
@@ -239,7 +239,17 @@ def test_gif_fallback_has_every_frame_and_is_scaled(tmp_path):
     assert images.shape[:3] == (5, 225, GIF_MAX_WIDTH)
 
 
+def test_mp4v_when_ffmpeg_cannot_run(result, seq, tmp_path, monkeypatch):
+    monkeypatch.setattr("posetrack.app._overlay._H264Writer.ok", property(lambda self: False))
+    saved = save(tmp_path / "out", result, seq)
+    assert saved.overlay == tmp_path / "out" / "overlay.mp4"
+    assert video_codec(saved.overlay) == "mp4v"
+    capture = cv2.VideoCapture(str(saved.overlay))
+    assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
+
+
 def test_gif_when_no_mp4_writer_opens(result, seq, tmp_path, monkeypatch):
+    monkeypatch.setattr("posetrack.app._overlay._H264Writer.ok", property(lambda self: False))
     monkeypatch.setattr("posetrack.app._overlay._Mp4Writer.ok", property(lambda self: False))
     saved = save(tmp_path / "out", result, seq)
     assert saved.overlay == tmp_path / "out" / "overlay.gif"

@@ -1,11 +1,13 @@
 """Overlay video: each frame's colour image (or colourised depth) with the estimated skeleton.
 
-An MP4 is written with OpenCV's ``VideoWriter`` and the ``mp4v`` (MPEG-4 Part 2) codec, which
-the opencv-python wheels carry with their built-in FFmpeg, so no system codec or extra Python
-package is needed. H.264 (``avc1``) is not in those wheels, and imageio needs an FFmpeg plugin
-(``imageio-ffmpeg`` or ``av``) that is often absent, so neither is relied on. Where no MP4
-writer opens, an animated GIF (imageio's bundled Pillow plugin) is written instead, scaled to
-at most :data:`GIF_MAX_WIDTH` pixels wide because GIF frames are kept in memory until the end.
+An MP4 is H.264 (``yuv420p``, ``+faststart``), so browsers, Jupyter and phones play it: it is
+encoded by the FFmpeg binary that the ``imageio-ffmpeg`` wheel ships (a dependency), fed raw
+frames through a pipe. OpenCV's wheels carry no H.264 encoder (``avc1`` fails to open), only
+MPEG-4 Part 2 (``mp4v``), which most players but no browser play: that is the fallback when
+the FFmpeg binary cannot run. Where no MP4 writer opens at all, an animated GIF (imageio's
+bundled Pillow plugin) is written instead, scaled to at most :data:`GIF_MAX_WIDTH` pixels wide
+because GIF frames are kept in memory until the end. :func:`video_codec` says which codec a
+written file holds.
 
 Colours: green skeleton = tracked, red = lost (Delta above ``lost_delta`` or agreement
 below ``lost_agreement``), grey = no observation (the held pose, if any); small cyan dots =
@@ -118,7 +120,9 @@ def overlay_frame(
 
 
 class _Mp4Writer:
-    """Streams frames to an MP4 (mp4v); frames must all have the same size."""
+    """Streams frames to an MP4 with OpenCV (mp4v, the fallback); frames all of one size."""
+
+    codec = "mpeg4"
 
     def __init__(self, path: Path, fps: float, size: tuple[int, int]):
         w, h = size
@@ -142,6 +146,55 @@ class _Mp4Writer:
         self.writer.release()
 
 
+class _H264Writer:
+    """Streams frames to an H.264 MP4 through imageio-ffmpeg's FFmpeg binary."""
+
+    codec = "h264"
+
+    def __init__(self, path: Path, fps: float, size: tuple[int, int]):
+        w, h = size
+        self.size = (w - w % 2, h - h % 2)  # yuv420p needs even sizes
+        self.path = path
+        self.frames = 0
+        self._gen = None
+        try:
+            import imageio_ffmpeg
+
+            self._gen = imageio_ffmpeg.write_frames(
+                str(path), self.size, fps=float(fps), codec="libx264", pix_fmt_in="rgb24",
+                pix_fmt_out="yuv420p", quality=None, macro_block_size=1,
+                output_params=["-crf", "23", "-preset", "veryfast", "-movflags", "+faststart"],
+                ffmpeg_log_level="error",
+            )  # fmt: skip
+            self._gen.send(None)  # starts FFmpeg
+        except (ImportError, OSError, RuntimeError):  # no wheel, or its binary does not run
+            self._gen = None
+
+    @property
+    def ok(self) -> bool:
+        return self._gen is not None
+
+    def write(self, rgb: np.ndarray) -> None:
+        w, h = self.size
+        self._gen.send(np.ascontiguousarray(rgb[:h, :w], dtype=np.uint8))
+        self.frames += 1
+
+    def close(self) -> None:
+        if self._gen is not None:
+            self._gen.close()
+
+
+def video_codec(path: str | os.PathLike[str]) -> str | None:
+    """The codec of an MP4's video track as its four-character code (``"avc1"`` for H.264,
+    ``"mp4v"`` for MPEG-4 Part 2), read from the file's sample description; None if none."""
+    data = Path(path).read_bytes()
+    i = data.find(b"stsd")
+    if i < 0 or len(data) < i + 20:
+        return None
+    # stsd: size(4) 'stsd' version/flags(4) entry count(4), then entry: size(4) format(4).
+    return data[i + 16 : i + 20].decode("ascii", "replace")
+
+
 def write_video(
     stem: str | os.PathLike[str],
     frames: Iterable[np.ndarray],
@@ -150,7 +203,8 @@ def write_video(
     size: tuple[int, int],
     formats: Sequence[str] = ("mp4", "gif"),
 ) -> Path:
-    """Write RGB frames as ``<stem>.mp4``, or ``<stem>.gif`` where no MP4 writer opens.
+    """Write RGB frames as ``<stem>.mp4`` (H.264, else mp4v), or ``<stem>.gif`` where no MP4
+    writer opens.
 
     The file is written in place (not atomically): call this inside a folder that is itself
     written atomically (:func:`posetrack.io.atomic_dir`), as :func:`save_results` does.
@@ -173,18 +227,19 @@ def write_video(
     w, h = size
     if "mp4" in formats:
         path = stem.with_suffix(".mp4")
-        writer = _Mp4Writer(path, fps, size)
-        if writer.ok:
-            try:
-                for frame in frames:
-                    writer.write(frame)
-            finally:
-                writer.close()
-            if writer.frames and path.stat().st_size == 0:
-                raise OSError(f"{path}: OpenCV opened an MP4 writer but wrote nothing")
-            return path
-        writer.close()
-        path.unlink(missing_ok=True)
+        for kind in (_H264Writer, _Mp4Writer):
+            writer = kind(path, fps, size)
+            if writer.ok:
+                try:
+                    for frame in frames:
+                        writer.write(frame)
+                finally:
+                    writer.close()
+                if writer.frames and path.stat().st_size == 0:
+                    raise OSError(f"{path}: an MP4 writer ({writer.codec}) opened but wrote nothing")
+                return path
+            writer.close()
+            path.unlink(missing_ok=True)
     if "gif" in formats:
         factor = min(1.0, GIF_MAX_WIDTH / w)
         small = (max(1, round(w * factor)), max(1, round(h * factor)))
