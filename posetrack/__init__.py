@@ -6,7 +6,8 @@ Subsets of Body Keypoints". The core, one module per stage:
     _body (model, FK) -> _geometry (body-derived constants) -> _camera -> _observe (lifting)
     -> _residuals (Eq. 1) -> _fit (LM) -> _score (Eq. 3) -> _render (rasteriser, render+score)
     -> _depthobs (observation preprocessing) -> _select (landmark subsets) -> _config
-    -> _step (one batched frame) -> _tracker (sequences); _metrics, _init, _refine beside them;
+    -> _step (one batched frame) -> _tracker (sequences) -> _world (output frames); _metrics,
+    _init, _refine beside them;
     _associate (which person) and _sides (which side) relabel detections before the tracker.
 
 Around the core: ``posetrack.io`` (file formats), ``posetrack.synth`` (a synthetic RGB-D
@@ -89,8 +90,13 @@ from ._tracker import Tracker as Tracker
 from ._tracker import TrackResult as TrackResult
 from ._tracker import lift_sequence as lift_sequence
 from ._tracker import track as track
+from ._world import FRAMES as FRAMES
+from ._world import WorldFrame as WorldFrame
+from ._world import camera_frame as camera_frame
+from ._world import floor_frame as floor_frame
 from .app import SavedResults as SavedResults
 from .app import bvh_from_result as bvh_from_result
+from .app import output_frame as output_frame
 from .app import save_results as save_results
 
 __version__ = "0.1.0"
@@ -126,6 +132,8 @@ __all__ = [
     "LIMB_PAIRS", "Accuracy", "acceleration_error", "accuracy", "followed_identity",
     "gaussian_smoothed", "identity_jumps", "jitter", "joint_errors", "motion_metrics",
     "naive_lifting", "success_curve", "swapped_limb_frames", "swapped_limbs",
+    # output frames
+    "FRAMES", "WorldFrame", "camera_frame", "floor_frame",
     # result files
-    "SavedResults", "bvh_from_result", "save_results",
+    "SavedResults", "bvh_from_result", "output_frame", "save_results",
 ]  # fmt: skip

@@ -138,6 +138,10 @@ class TrackResult:
     """(T, groups) bool: where the detector's left and right keypoints of each
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
     (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``, the default)."""
+    floor: np.ndarray | None = None
+    """(4,) the first floor plane the tracker found in this recording, ``(nx, ny, nz, d)``
+    in the camera frame with ``n @ p + d`` a point's height (metres); ``None`` when none was
+    found (or ``use_floor`` is off). :func:`posetrack.floor_frame` builds the world frame on it."""
     mode: str = "per-frame"
     """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
     (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
@@ -399,6 +403,7 @@ class Tracker:
         self._window_frames = np.full(self.motion.online_window, -1, np.int64)
         self._window_valid = np.zeros(self.motion.online_window, bool)
         self._frames_seen = 0
+        self._found_floor: np.ndarray | None = None
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
         frames before the newest, smoothed (``None`` until there is one)."""
@@ -642,6 +647,8 @@ class Tracker:
         if not np.all(np.isfinite(params)):
             return False
         self._floor = jnp.asarray(self._fit_floor(depth_m, params), _DTYPE)
+        if self._found_floor is None and not np.allclose(np.asarray(self._floor), NO_FLOOR):
+            self._found_floor = np.asarray(self._floor, np.float64)
         N = self.config.n
         self._key, sub = jax.random.split(self._key)
         self._state = TrackState(
@@ -890,6 +897,7 @@ class Tracker:
             num_people=num_people,
             per_frame_keypoints3d=per_frame,
             exchanged=exchanged,
+            floor=self._found_floor,
             mode=self.mode,
         )
 

@@ -24,6 +24,7 @@ from posetrack import _body as body
 from posetrack import io
 from posetrack.app._cli import main
 from posetrack.app._export import BVH_KEYPOINTS
+from posetrack._depthobs import NO_FLOOR
 from posetrack.app._overlay import video_codec
 
 N_FRAMES = 16
@@ -514,3 +515,60 @@ def test_warmup_needs_a_camera_and_a_sane_size():
     with pytest.raises(SystemExit) as e, contextlib.redirect_stderr(stdio.StringIO()) as err:
         main(["warmup", "--size", "4x3"])
     assert e.value.code == 2 and "at least 8x8" in err.getvalue()
+
+
+# -- --frame floor, TRC, H.264 ----------------------------------------------------------------
+
+
+def test_floor_frame_outputs(rec, seq, cli, poses, tmp_path):
+    out = tmp_path / "floor"
+    code, stdout, stderr = run_cli(*track_args(rec, out, "--frame", "floor", "--rgb", rec / "rgb"))
+    assert code == 0, stderr
+    assert "(floor frame)" in stdout and "markers.trc" in stdout
+    assert video_codec(out / "overlay.mp4") == "avc1"
+    fl = io.read_poses_npz(out / "poses.npz")
+    assert str(fl["frame"]) == "floor" and str(poses["frame"]) == "camera"
+    np.testing.assert_allclose(poses["world_from_camera"], np.eye(4))
+    M = fl["world_from_camera"]
+    # The same track, moved rigidly: camera-frame poses map onto the floor-frame ones.
+    cam = poses["keypoints3d"].astype(np.float64)
+    np.testing.assert_allclose(cam @ M[:3, :3].T + M[:3, 3], fl["keypoints3d"], atol=1e-5)
+    # Its y axis is the synthetic scene's floor normal, and heights are heights above it.
+    n, d = seq.floor_plane[:3], seq.floor_plane[3]
+    assert np.degrees(np.arccos(np.clip(M[1, :3] @ n, -1, 1))) < 3.0
+    truth_height = seq.joints3d @ n + d
+    err = np.nanmedian(np.abs(fl["keypoints3d"][..., 1] - truth_height))
+    assert err < 0.06, err
+    first = int(np.flatnonzero(fl["status"] == "tracked")[0])
+    np.testing.assert_allclose(fl["params"][first, [0, 2]], 0.0, atol=1e-6)  # origin below
+    assert 0.7 < fl["params"][first, 1] < 1.2  # a standing pelvis
+    # Parameters pose the body in the floor frame; the BVH holds floor coordinates (y up).
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frame"]["name"] == "floor"
+    shape = posetrack.BodyShape.create(**summary["shape"])
+    fk = np.asarray(jax.vmap(body.keypoints, in_axes=(None, 0))(shape, fl["params"]))
+    np.testing.assert_allclose(fl["keypoints3d"][:, body.BODY_JOINTS], fk[:, body.BODY_JOINTS],
+                               atol=1e-4)  # fmt: skip
+    names, pos = bvh_positions(out / "motion.bvh")
+    pos = pos * np.array([1.0, -1.0, -1.0])  # bvh_positions maps y-up to the camera's axes
+    err = np.linalg.norm(pos[:, names.index("right_knee_end")] - fk[:, 10], axis=-1).max()
+    assert err < 1e-3, err
+    # The TRC has the floor-frame keypoints in metres, gaps where not estimated.
+    trc = io.read_trc(out / "markers.trc")
+    assert trc["units"] == "m" and trc["names"] == list(io.COCO18_NAMES)
+    np.testing.assert_allclose(trc["markers"], fl["keypoints3d"], atol=2e-6)
+
+
+def test_floor_frame_without_a_floor_is_one_error_line(rec, tmp_path, monkeypatch):
+    monkeypatch.setattr("posetrack._tracker.Tracker._fit_floor", lambda self, d, p: NO_FLOOR)
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "o", "--frame", "floor", "--no-video"))
+    errors = [line for line in stderr.splitlines() if line.startswith("error:")]
+    assert code == 2 and len(errors) == 1 and errors[0].startswith("error: floor frame: ")
+    assert stderr.splitlines()[-1] == errors[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_version():
+    with pytest.raises(SystemExit) as e, contextlib.redirect_stdout(stdio.StringIO()) as out:
+        main(["--version"])
+    assert e.value.code == 0 and out.getvalue().strip() == f"posetrack {posetrack.__version__}"

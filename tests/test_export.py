@@ -145,7 +145,8 @@ def test_save_results_writes_every_output(result, seq, tmp_path):
                  info={"inputs": {"who": "test"}, "timing": {"track_s": 1.5}})  # fmt: skip
     assert saved.overlay == out / "overlay.mp4" and saved.bvh == out / "motion.bvh"
     names = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
-    assert names == ["keypoints3d", "motion.bvh", "overlay.mp4", "poses.npz", "summary.json"]
+    assert names == ["keypoints3d", "markers.trc", "motion.bvh", "overlay.mp4", "poses.npz",
+                     "summary.json"]  # fmt: skip
     poses = io.read_poses_npz(saved.poses)
     assert float(poses["fps"]) == 15.0
     np.testing.assert_array_equal(poses["frame_ids"], np.arange(N_FRAMES) + 100)

@@ -11,6 +11,7 @@ from ._export import BVH_KEYPOINTS as BVH_KEYPOINTS
 from ._export import SavedResults as SavedResults
 from ._export import bvh_from_result as bvh_from_result
 from ._export import check_output_dir as check_output_dir
+from ._export import output_frame as output_frame
 from ._export import save_results as save_results
 from ._export import status_counts as status_counts
 from ._machine import machine_info as machine_info
@@ -40,6 +41,7 @@ __all__ = [
     "SavedResults",
     "bvh_from_result",
     "check_output_dir",
+    "output_frame",
     "save_results",
     "status_counts",
     # pictures (RGB uint8 images, colours as RGB tuples)

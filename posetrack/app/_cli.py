@@ -221,7 +221,7 @@ def _track(args) -> int:
     saved = save_results(
         out, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids, fps=fps,
         rgb=rec.rgb, depth=rec.depth, video=not args.no_video, detections=(kp2d, conf),
-        info=info, progress=progress,
+        info=info, progress=progress, frame=args.frame,
     )  # fmt: skip
 
     counts = status_counts(result.status)
@@ -257,11 +257,11 @@ def _track(args) -> int:
         else ""
     )
     print(f"time: {total:.1f} s (compile {result.compile_s:.1f} s{steady})")
-    files = ["poses.npz", "keypoints3d/", "motion.bvh"]
+    files = ["poses.npz", "keypoints3d/", "motion.bvh", "markers.trc"]
     if saved.overlay is not None:
         files.append(saved.overlay.name)
     files.append("summary.json")
-    print(f"wrote {out}/: {', '.join(files)}")
+    print(f"wrote {out}/ ({args.frame} frame): {', '.join(files)}")
     if not tracked.any():
         print(
             "warning: no frame was tracked; check that the keypoints belong to the depth "
@@ -394,6 +394,18 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _version() -> str:
+    """The installed package's version (the source tree's when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("posetrack")
+    except PackageNotFoundError:
+        from .. import __version__
+
+        return __version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     from ..synth import MOTIONS  # NumPy only: the help lists what generate accepts
 
@@ -401,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="posetrack",
         description="3D human pose tracking from RGB-D video and 2D keypoints (Makris & Argyros).",
     )
+    p.add_argument("--version", action="version", version=f"posetrack {_version()}")
     sub = p.add_subparsers(dest="command", required=True)
 
     d = sub.add_parser(
@@ -528,6 +541,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--fix-sides", action="store_true",
         help="undo the detector's left/right swaps of the arms and legs before fitting "
         "(helps with frequent swaps, hurts under occlusion; see the README)",
+    )  # fmt: skip
+    t.add_argument(
+        "--frame", choices=("camera", "floor"), default="camera",
+        help="frame of the poses, JSON, BVH and TRC: the depth camera's (x right, y down, z "
+        "forward) or the floor's (y up, metres, origin on the floor under the first tracked "
+        "pelvis; needs a visible floor) (default: %(default)s)",
     )  # fmt: skip
     t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
     t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")

@@ -6,6 +6,7 @@ next to it and renamed into place at the end, :func:`posetrack.io.atomic_dir`)::
     out/poses.npz            keypoints3d, confidence, params, delta, status, frame_ids[, fps]
     out/keypoints3d/*.json   EasyMocap layout, one file per frame
     out/motion.bvh           the fitted skeleton and its motion (y-up, centimetres)
+    out/markers.trc          the 18 keypoints as OpenSim markers (metres)
     out/overlay.mp4          (or overlay.gif) the skeleton drawn on colour or depth
     out/summary.json         frames, status counts, method, config, body shape, timing
 
@@ -29,7 +30,16 @@ from .. import _body as body
 from .._camera import Intrinsics
 from .._so3 import quat_normalize
 from .._tracker import STATUS_NAMES, TrackResult
-from ..io import MARKER_NAME, atomic_dir, write_bvh, write_easymocap, write_poses_npz
+from .._world import FRAMES, WorldFrame, camera_frame, floor_frame, transform_params
+from ..io import (
+    COCO18_NAMES,
+    MARKER_NAME,
+    atomic_dir,
+    write_bvh,
+    write_easymocap,
+    write_poses_npz,
+    write_trc,
+)
 from ._overlay import write_overlay
 
 DEFAULT_FPS = 30.0
@@ -137,13 +147,41 @@ def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
     )
 
 
-def bvh_from_result(result: TrackResult) -> BvhMotion:
+def bvh_from_result(result: TrackResult, frame: WorldFrame | None = None) -> BvhMotion:
     """The tracked skeleton and motion as BVH arrays (:func:`bvh_from_params` of the result).
 
     Every frame has a pose: frames without an estimate repeat the nearest estimated one
     (``TrackResult.params`` is never NaN); ``result.status`` says which frames those are.
+    With a ``frame`` (:func:`output_frame`), the motion is in that frame, written as y-up by
+    ``write_bvh(camera_to_y_up=True)`` (a floor frame, already y-up, is turned by ``C`` first so
+    that the writer's ``C`` undoes it: the file then holds floor coordinates).
     """
-    return bvh_from_params(result.shape, result.params)
+    params = result.params
+    if frame is not None and frame.name != "camera":
+        params = transform_params(frame.params(params), _C, np.zeros(3))
+    return bvh_from_params(result.shape, params)
+
+
+def output_frame(result: TrackResult, name: str = "camera") -> WorldFrame:
+    """The frame outputs are written in: ``"camera"`` (as tracked) or ``"floor"`` (y up, the
+    origin on the floor under the first tracked frame's pelvis; :func:`posetrack.floor_frame`).
+
+    Raises:
+        ValueError: an unknown name; ``"floor"`` without a floor found or a tracked frame.
+    """
+    if name not in FRAMES:
+        raise ValueError(f"output frame must be one of {FRAMES}, got {name!r}")
+    if name == "camera":
+        return camera_frame()
+    tracked = np.flatnonzero(np.asarray(result.status) == 0)
+    if not len(tracked):
+        raise ValueError("floor frame: no frame was tracked, so there is no pelvis to stand on")
+    if result.floor is None:
+        raise ValueError(
+            "floor frame: the tracker found no floor plane in this recording (it needs a "
+            "visible, near-horizontal floor under the person); use --frame camera"
+        )
+    return floor_frame(result.floor, result.params[tracked[0], :3])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -158,6 +196,8 @@ class SavedResults:
     """The EasyMocap ``keypoints3d`` folder."""
     bvh: Path
     """``motion.bvh``."""
+    trc: Path
+    """``markers.trc``."""
     overlay: Path | None
     """``overlay.mp4`` or ``overlay.gif``; None without video."""
     summary: dict[str, Any]
@@ -222,6 +262,7 @@ def save_results(
     detections: tuple[np.ndarray, np.ndarray] | None = None,
     info: dict[str, Any] | None = None,
     progress: bool = False,
+    frame: str = "camera",
 ) -> SavedResults:
     """Write every output of a tracked sequence into ``out_dir``, atomically.
 
@@ -242,6 +283,8 @@ def save_results(
       ``[{"id": 0, "keypoints3d": [[x, y, z, c], ...]}]``, BODY_25 order, camera frame, metres.
     * ``motion.bvh``: :func:`bvh_from_result` written with ``camera_to_y_up=True`` in
       centimetres (Blender: File > Import > Motion Capture, scale 0.01).
+    * ``markers.trc`` (:func:`posetrack.io.write_trc`): the 18 COCO-18 keypoints as OpenSim
+      markers, metres, in ``frame``; empty where not estimated.
     * ``overlay.mp4`` or ``overlay.gif`` (``video=True``): :func:`posetrack._overlay.write_overlay`.
     * ``summary.json``: frames, status counts, mean Delta, method and configuration, body shape,
       fps, timing, the files, plus ``info``.
@@ -262,12 +305,15 @@ def save_results(
             the tracker, drawn as dots on the overlay.
         info: extra JSON-able entries for ``summary.json`` (inputs, notes, timing, ...).
         progress: progress bar for the overlay on stderr.
+        frame: ``"camera"`` or ``"floor"`` (:func:`output_frame`): the frame of the poses in
+            ``poses.npz``, the JSON, the BVH and the TRC (the overlay is drawn in the image).
 
     Returns:
         A :class:`SavedResults`.
 
     Raises:
-        ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames.
+        ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames, a
+            floor frame without a floor.
         FileExistsError: ``out_dir`` exists and was not written by posetrack.
     """
     t0 = time.perf_counter()
@@ -286,7 +332,10 @@ def save_results(
             raise ValueError(f"save_results: {name} has {len(frames)} frames, result has {T}")
     out = check_output_dir(out_dir)
     rate = float(fps) if fps is not None else DEFAULT_FPS
-    motion = bvh_from_result(result)  # validates params before anything is written
+    world = output_frame(result, frame)
+    motion = bvh_from_result(result, world)  # validates params before anything is written
+    kp3d = world.points(result.keypoints3d)
+    params = world.params(result.params)
 
     tracked = result.status == 0
     summary: dict[str, Any] = {
@@ -301,6 +350,11 @@ def save_results(
         "fps": float(fps) if fps is not None else None,
         "fps_used_for_bvh_and_video": rate,
         "intrinsics": intrinsics.to_dict(),
+        "frame": {
+            "name": world.name,
+            "world_from_camera": world.matrix,
+            "floor_plane_camera": result.floor,
+        },
         "timing": {
             "compile_s": result.compile_s,
             "ms_per_frame_steady": result.ms_per_frame,
@@ -308,12 +362,13 @@ def save_results(
     }
     with atomic_dir(out) as tmp:
         write_poses_npz(
-            tmp / "poses.npz", keypoints3d=result.keypoints3d, confidence=result.confidence,
-            params=result.params, delta=result.delta, status=result.status, fps=fps,
-            frame_ids=ids,
+            tmp / "poses.npz", keypoints3d=kp3d, confidence=result.confidence, params=params,
+            delta=result.delta, status=result.status, fps=fps, frame_ids=ids, frame=world.name,
+            world_from_camera=world.matrix,
         )  # fmt: skip
-        write_easymocap(tmp, result.keypoints3d, result.confidence, ids)
+        write_easymocap(tmp, kp3d, result.confidence, ids)
         write_bvh(tmp / "motion.bvh", **motion._asdict(), fps=rate, camera_to_y_up=True)
+        write_trc(tmp / "markers.trc", kp3d, COCO18_NAMES, fps=rate, frame_ids=ids)
         overlay = None
         if video:
             overlay = write_overlay(
@@ -325,6 +380,7 @@ def save_results(
             "poses": "poses.npz",
             "keypoints3d": "keypoints3d/ (EasyMocap, BODY_25 order)",
             "bvh": "motion.bvh (y-up, centimetres)",
+            "trc": f"markers.trc (OpenSim markers, metres, {world.name} frame)",
             "overlay": overlay.name if overlay is not None else None,
             "summary": "summary.json",
         }
@@ -345,6 +401,7 @@ def save_results(
         poses=out / "poses.npz",
         keypoints3d=out / "keypoints3d",
         bvh=out / "motion.bvh",
+        trc=out / "markers.trc",
         overlay=None if overlay is None else out / overlay.name,
         summary=summary,
     )

@@ -17,6 +17,7 @@ the 2D detections the tracker was given.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -166,7 +167,11 @@ class _H264Writer:
                 output_params=["-crf", "23", "-preset", "veryfast", "-movflags", "+faststart"],
                 ffmpeg_log_level="error",
             )  # fmt: skip
-            self._gen.send(None)  # starts FFmpeg
+            with warnings.catch_warnings():
+                # JAX warns at any fork; subprocess forks and at once execs FFmpeg in C, so no
+                # Python (and no JAX thread state) runs in the child.
+                warnings.filterwarnings("ignore", "os.fork", RuntimeWarning)
+                self._gen.send(None)  # starts FFmpeg
         except (ImportError, OSError, RuntimeError):  # no wheel, or its binary does not run
             self._gen = None
 

@@ -36,6 +36,8 @@ from ._openpose import COCO18_NAMES as COCO18_NAMES
 from ._openpose import KeypointFrame as KeypointFrame
 from ._openpose import read_openpose_json as read_openpose_json
 from ._openpose import write_openpose_json as write_openpose_json
+from ._trc import read_trc as read_trc
+from ._trc import write_trc as write_trc
 from ._recording import Recording as Recording
 from ._recording import load_recording as load_recording
 from ._rgb import RgbFrames as RgbFrames

@@ -1,7 +1,8 @@
 """Tracker outputs: a NumPy ``.npz`` of poses and EasyMocap-style per-frame JSON.
 
 Both are written atomically (see :mod:`posetrack.io._atomic`). Poses are in the depth
-camera frame (OpenCV: x right, y down, z forward), metres, COCO-18 keypoint order. No NaN is
+camera frame (OpenCV: x right, y down, z forward) or, when asked, the floor frame (y up; the
+``.npz`` records which), metres, COCO-18 keypoint order. No NaN is
 ever written as a pose value: ``params`` must be finite, and NaN in ``keypoints3d`` only
 means "not estimated" (the whole joint, with confidence 0).
 """
@@ -106,6 +107,8 @@ def write_poses_npz(
     status: Sequence[str] | np.ndarray,
     fps: float | None,
     frame_ids: np.ndarray,
+    frame: str = "camera",
+    world_from_camera: np.ndarray | None = None,
 ) -> None:
     """Write the tracked sequence to an uncompressed ``.npz``, atomically.
 
@@ -117,10 +120,15 @@ def write_poses_npz(
     ``format``              str             ``"posetrack-poses"``
     ``version``             int64           1
     ``frame_ids``           int64 (T,)      frame number of each row (file-name numbers)
-    ``keypoints3d``         float32 (T,18,3) COCO-18 joints, metres, depth-camera frame
-                                            (x right, y down, z forward); NaN = not estimated
+    ``keypoints3d``         float32 (T,18,3) COCO-18 joints, metres, in ``frame``; NaN = not
+                                            estimated
+    ``frame``               str             ``"camera"`` (the depth camera: x right, y down,
+                                            z forward) or ``"floor"`` (y up, origin on the
+                                            floor: ``posetrack.floor_frame``)
+    ``world_from_camera``   float64 (4,4)   camera -> ``frame`` (identity for "camera")
     ``confidence``          float32 (T,18)  0 where not estimated
-    ``params``              float64 (T,P)   body-model parameters (P = 43), always finite
+    ``params``              float64 (T,P)   body-model parameters (P = 43), always finite,
+                                            posing the body in ``frame``
     ``delta``               float32 (T,)    objective (discrepancy) of the chosen hypothesis;
                                             NaN where not computed
     ``status``              <U14 (T,)       ``"tracked"``, ``"lost"`` or ``"no_observation"``
@@ -162,6 +170,8 @@ def write_poses_npz(
         "delta": delta.astype(np.float32),
         "status": _status_strings(status, n),
         "joint_names": np.asarray(COCO18_NAMES),
+        "frame": np.asarray(str(frame)),
+        "world_from_camera": _check_transform(world_from_camera, what),
     }
     if fps is not None:
         fps = float(fps)
@@ -170,6 +180,19 @@ def write_poses_npz(
         arrays["fps"] = np.asarray(fps, dtype=np.float64)
     with atomic_open(path, "wb") as f:
         np.savez(f, **arrays)
+
+
+def _check_transform(m, what: str) -> np.ndarray:
+    """A rigid ``(4, 4)`` transform (None: the identity)."""
+    if m is None:
+        return np.eye(4)
+    m = np.asarray(m, np.float64)
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise ValueError(f"{what}: world_from_camera must be a finite (4, 4), got {m.shape}")
+    R = m[:3, :3]
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.allclose(m[3], [0, 0, 0, 1])):
+        raise ValueError(f"{what}: world_from_camera is not a rigid transform: {m.tolist()}")
+    return m
 
 
 def read_poses_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
@@ -218,8 +241,8 @@ def write_easymocap(
     1 µm), or ``[]`` for a frame where no joint was estimated. Joints not estimated are written
     ``[0, 0, 0, 0]`` (JSON has no NaN). ``layout="body25"`` (default: EasyMocap's ``body25``
     skeleton) adds MidHip = mean of the hips and unestimated feet; ``"coco18"`` writes the 18
-    joints as they are. Coordinates stay in the depth-camera frame (EasyMocap usually works
-    in a world frame; here the camera is the world).
+    joints as they are. Coordinates are written as given: the depth-camera frame, or the floor
+    frame when the caller transformed them (``posetrack track --frame floor``).
 
     The ``keypoints3d`` folder is built aside and renamed into place: an old one (written by
     posetrack) is replaced as a whole; one not written by posetrack is never replaced
