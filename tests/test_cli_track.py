@@ -572,3 +572,42 @@ def test_version():
     with pytest.raises(SystemExit) as e, contextlib.redirect_stdout(stdio.StringIO()) as out:
         main(["--version"])
     assert e.value.code == 0 and out.getvalue().strip() == f"posetrack {posetrack.__version__}"
+
+
+# -- keypoints at the wrong resolution ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def half_size_rec(rec, tmp_path_factory):
+    """The recording with OpenPose keypoints as if detected on half-size colour images."""
+    half = tmp_path_factory.mktemp("half") / "rec"
+    shutil.copytree(rec, half)
+    for path in sorted((half / "keypoints").glob("*.json")):
+        doc = json.loads(path.read_text())
+        for person in doc["people"]:
+            xyc = np.asarray(person["pose_keypoints_2d"], np.float64).reshape(-1, 3)
+            xyc[:, :2] *= 0.5
+            person["pose_keypoints_2d"] = xyc.reshape(-1).tolist()
+        path.write_text(json.dumps(doc))
+    return half
+
+
+def test_half_size_keypoints_are_refused_with_the_fix(half_size_rec, tmp_path):
+    code, _, stderr = run_cli(*track_args(half_size_rec, tmp_path / "o", "--no-video"))
+    assert code == 2 and "top-left quadrant" in stderr and "--keypoints-scale 2" in stderr
+    assert stderr.count("error:") == 1 and not (tmp_path / "o").exists()
+
+
+def test_keypoints_scale_rescales(half_size_rec, cli, poses, tmp_path):
+    out = tmp_path / "o"
+    code, _, stderr = run_cli(
+        *track_args(half_size_rec, out, "--no-video", "--keypoints-scale", "2")
+    )
+    assert code == 0, stderr
+    assert "multiplied by 2" in stderr
+    scaled = io.read_poses_npz(out / "poses.npz")
+    np.testing.assert_allclose(scaled["keypoints3d"], poses["keypoints3d"], atol=2e-3)
+    # ... and 1 means "as they are": no refusal (the track then finds little).
+    code, _, stderr = run_cli(*track_args(half_size_rec, tmp_path / "p", "--no-video",
+                                          "--keypoints-scale", "1"))  # fmt: skip
+    assert code == 0, stderr

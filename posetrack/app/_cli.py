@@ -139,6 +139,7 @@ def _track(args) -> int:
         rgb=args.rgb, depth_scale=args.depth_scale, person_id=args.person_id,
         allow_missing=args.allow_missing,
         out_of_image="drop" if args.drop_outside else "error",
+        keypoints_scale=args.keypoints_scale,
     )  # fmt: skip
     notes = list(rec.notes)
     for note in notes:
@@ -202,6 +203,7 @@ def _track(args) -> int:
             "person": args.person,
             "allow_missing": args.allow_missing,
             "drop_outside": args.drop_outside,
+            "keypoints_scale": args.keypoints_scale,
             "seed": args.seed,
             "mode": mode,
             "lag": args.online or 0,
@@ -530,6 +532,12 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--drop-outside", action="store_true",
         help="keypoints more than 16 px outside the image are marked missing (default: error)",
+    )  # fmt: skip
+    t.add_argument(
+        "--keypoints-scale", type=float, metavar="S",
+        help="multiply keypoint pixels by S (keypoints detected on an image of another size "
+        "than depth: 2 for half-size colour). Default: 1, but keypoints that all lie in the "
+        "depth image's top-left quadrant are refused as half-size",
     )  # fmt: skip
     t.add_argument(
         "--fps", type=float,

@@ -192,6 +192,7 @@ def read_openpose_json(
     image_size: tuple[int, int] | None = None,
     margin: float = 16.0,
     out_of_image: Literal["error", "drop"] = "error",
+    scale: float = 1.0,
 ) -> KeypointFrame:
     """Read one OpenPose JSON file and return the chosen person in COCO-18 order.
 
@@ -203,6 +204,8 @@ def read_openpose_json(
         margin: pixels outside the image that are still accepted as they are.
         out_of_image: ``"error"`` (default) or ``"drop"`` (mark missing, with a note) for a
             confident keypoint farther than ``margin`` outside the image.
+        scale: pixel coordinates are multiplied by it before anything else (keypoints
+            detected on an image of another size than depth: 2 for half-size colour).
 
     Returns:
         A :class:`KeypointFrame`; ``person_index == -1`` when nobody is listed or the
@@ -243,7 +246,7 @@ def read_openpose_json(
             f"people use different layouts ({', '.join(sorted(layouts))}) in one file",
         )  # fmt: skip
     layout = people[0][0]
-    coco = [values[_INDEX[layout]] for _l, values, _ids in people]
+    coco = [values[_INDEX[layout]] * np.array([scale, scale, 1.0]) for _l, values, _ids in people]
     xyc_all = np.stack(coco)
     scores = tuple(float(v) for v in detection_score(xyc_all[..., :2], xyc_all[..., 2]))
     notes: list[str] = []

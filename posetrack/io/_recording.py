@@ -82,6 +82,33 @@ def _readonly(a: np.ndarray) -> np.ndarray:
     return a
 
 
+#: A recording needs at least this many confident keypoints before their spread is judged.
+_MIN_KEYPOINTS_FOR_SCALE_CHECK = 30
+
+
+def _check_keypoint_resolution(folder: Path, everyone, width: int, height: int) -> None:
+    """Refuse keypoints that all lie in the top-left quadrant of the depth image.
+
+    OpenPose run on colour images half the size of depth (a common set-up with Kinect v2's
+    1920x1080 colour and a downscaled copy) gives coordinates half as large: every keypoint
+    lands in the top-left quadrant, the lifted depth belongs to whatever is there, and the
+    tracker would report "0 tracked" with no hint why.
+    """
+    xyc = np.concatenate([e.reshape(-1, 3) for e in everyone if len(e)] or [np.zeros((0, 3))])
+    seen = xyc[xyc[:, 2] > 0]
+    if len(seen) < _MIN_KEYPOINTS_FOR_SCALE_CHECK:
+        return
+    u, v = float(seen[:, 0].max()), float(seen[:, 1].max())
+    if u < width / 2 and v < height / 2:
+        raise InputError(
+            folder, "keypoints", f"largest x = {u:.0f}, largest y = {v:.0f}",
+            f"all {len(seen)} keypoints lie in the top-left quadrant of the {width}x{height} "
+            f"depth image (largest x {u:.0f}, largest y {v:.0f}), as if detected on an image half the size (OpenPose on downscaled "
+            "colour?); rescale them with --keypoints-scale 2 (keypoints_scale=2), or pass "
+            "--keypoints-scale 1 to use them as they are",
+        )  # fmt: skip
+
+
 def load_recording(
     *,
     depth_dir: str | os.PathLike[str],
@@ -93,6 +120,7 @@ def load_recording(
     allow_missing: bool = False,
     keypoint_margin: float = 16.0,
     out_of_image: Literal["error", "drop"] = "error",
+    keypoints_scale: float | None = None,
 ) -> Recording:
     """Load, validate and pair a recording; depth and colour stay on disk until indexed.
 
@@ -110,6 +138,11 @@ def load_recording(
             observation instead of an error.
         keypoint_margin: pixels outside the image a keypoint may lie and be kept.
         out_of_image: ``"error"`` or ``"drop"`` for keypoints farther outside.
+        keypoints_scale: multiply keypoint pixels by this (keypoints detected on an image of
+            another size than depth, e.g. 2 for OpenPose run on half-size colour). ``None``
+            (default): 1, but a recording whose keypoints all lie in the top-left quadrant of
+            the depth image is refused (that is what half-size keypoints look like; pass 1 to
+            use them as they are).
 
     Returns:
         A :class:`Recording`.
@@ -118,9 +151,13 @@ def load_recording(
         InputError: any bad file (see the readers), no frames, unpaired frames (without
             ``allow_missing``), duplicate frame numbers, a depth image whose size differs from
             the intrinsics, keypoint files mixing layouts, a ``person_id`` found in no file,
-            colour of another size than depth, a video with another frame count.
+            colour of another size than depth, a video with another frame count, keypoints
+            that look detected on a smaller image (``keypoints_scale=None``).
     """
     scale = check_depth_scale(depth_scale)
+    kp_scale = 1.0 if keypoints_scale is None else float(keypoints_scale)
+    if not (np.isfinite(kp_scale) and kp_scale > 0):
+        raise ValueError(f"keypoints_scale must be positive, got {keypoints_scale!r}")
     intrinsics_path = Path(intrinsics_path)
     intrinsics, intrinsics_layout, notes = read_intrinsics_with_layout(intrinsics_path)
     width, height = intrinsics.width, intrinsics.height
@@ -190,6 +227,7 @@ def load_recording(
                 image_size=(width, height),
                 margin=keypoint_margin,
                 out_of_image=out_of_image,
+                scale=kp_scale,
             )
             if frame.layout is not None:
                 if layout is None:
@@ -219,6 +257,10 @@ def load_recording(
                 id_missing.append(fid)
             for note in frame.notes:
                 logger.debug(note)
+        if keypoints_scale is None:
+            _check_keypoint_resolution(sources["keypoints"][0], everyone, width, height)
+        elif kp_scale != 1.0:
+            notes.append(f"keypoints: pixel coordinates multiplied by {kp_scale:g}")
         if person_id is not None and not (person_index >= 0).any():
             raise InputError(
                 sources["keypoints"][0],
