@@ -586,7 +586,7 @@ def half_size_rec(rec, tmp_path_factory):
         doc = json.loads(path.read_text())
         for person in doc["people"]:
             xyc = np.asarray(person["pose_keypoints_2d"], np.float64).reshape(-1, 3)
-            xyc[:, :2] *= 0.5
+            xyc[:, :2] = (xyc[:, :2] + 0.5) * 0.5 - 0.5  # pixel centres stay centres
             person["pose_keypoints_2d"] = xyc.reshape(-1).tolist()
         path.write_text(json.dumps(doc))
     return half

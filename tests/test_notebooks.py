@@ -138,4 +138,4 @@ def test_03_your_own_data(kernel, tmp_path):
     # The BVH read back reproduces the saved 3D keypoints (forward kinematics, in mm).
     assert float(r["bvh_vs_npz_mm"]) < 1.0, r
     assert int(r["json_files"]) == int(r["frames"]), r
-    assert r["files"] == "keypoints3d,motion.bvh,poses.npz,summary.json", r
+    assert r["files"] == "keypoints3d,markers.trc,motion.bvh,poses.npz,summary.json", r

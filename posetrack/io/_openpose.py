@@ -204,8 +204,9 @@ def read_openpose_json(
         margin: pixels outside the image that are still accepted as they are.
         out_of_image: ``"error"`` (default) or ``"drop"`` (mark missing, with a note) for a
             confident keypoint farther than ``margin`` outside the image.
-        scale: pixel coordinates are multiplied by it before anything else (keypoints
-            detected on an image of another size than depth: 2 for half-size colour).
+        scale: pixel coordinates are scaled by it before anything else, pixel centre to pixel
+            centre (``(x + 0.5) * scale - 0.5``): keypoints detected on an image of another
+            size than depth (2 for half-size colour).
 
     Returns:
         A :class:`KeypointFrame`; ``person_index == -1`` when nobody is listed or the
@@ -246,7 +247,9 @@ def read_openpose_json(
             f"people use different layouts ({', '.join(sorted(layouts))}) in one file",
         )  # fmt: skip
     layout = people[0][0]
-    coco = [values[_INDEX[layout]] * np.array([scale, scale, 1.0]) for _l, values, _ids in people]
+    coco = [values[_INDEX[layout]] for _l, values, _ids in people]
+    if scale != 1.0:  # pixel centres stay centres: (x + 0.5) * scale - 0.5
+        coco = [np.concatenate([(c[:, :2] + 0.5) * scale - 0.5, c[:, 2:]], axis=1) for c in coco]
     xyc_all = np.stack(coco)
     scores = tuple(float(v) for v in detection_score(xyc_all[..., :2], xyc_all[..., 2]))
     notes: list[str] = []
