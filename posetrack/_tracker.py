@@ -394,6 +394,7 @@ class Tracker:
         self.smooth_s = 0.0
         self.refine_s = 0.0
         self._prepare_started = False
+        self._found_floor: np.ndarray | None = None  # the first in this run (TrackResult.floor)
         self._forget_person()
         self._reset_motion()
 
@@ -403,7 +404,6 @@ class Tracker:
         self._window_frames = np.full(self.motion.online_window, -1, np.int64)
         self._window_valid = np.zeros(self.motion.online_window, bool)
         self._frames_seen = 0
-        self._found_floor: np.ndarray | None = None
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
         frames before the newest, smoothed (``None`` until there is one)."""
@@ -646,9 +646,10 @@ class Tracker:
             self._init_timed = True
         if not np.all(np.isfinite(params)):
             return False
-        self._floor = jnp.asarray(self._fit_floor(depth_m, params), _DTYPE)
-        if self._found_floor is None and not np.allclose(np.asarray(self._floor), NO_FLOOR):
-            self._found_floor = np.asarray(self._floor, np.float64)
+        floor = self._fit_floor(depth_m, params)
+        self._floor = jnp.asarray(floor, _DTYPE)
+        if self._found_floor is None and floor != NO_FLOOR:
+            self._found_floor = np.asarray(floor, np.float64)
         N = self.config.n
         self._key, sub = jax.random.split(self._key)
         self._state = TrackState(
@@ -799,6 +800,7 @@ class Tracker:
         kp2 = np.zeros((T, 18, 2), np.float32)
         lm_conf = np.zeros((T, 18), np.float32)
         self._reset_motion()
+        self._found_floor = None
         # Body shape from depth: the best-observed tracked frame of each of F equal stretches
         # of the recording (its depth as fitted: other people removed) is kept for refine_shape.
         n_keep = 0 if self.refine is None else min(self.refine.frames, T)

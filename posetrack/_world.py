@@ -102,6 +102,6 @@ def transform_params(params: np.ndarray, rotation: np.ndarray, shift: np.ndarray
     """
     params = np.array(params, np.float64)
     params[:, :3] = params[:, :3] @ np.asarray(rotation).T + np.asarray(shift)
-    params[:, 3:7] = quat_multiply(matrix_to_quat(np.asarray(rotation, np.float64)), params[:, 3:7])
+    turn = matrix_to_quat(np.asarray(rotation, np.float64))
+    params[:, 3:7] = quat_multiply(turn, params[:, 3:7])
     return params
-

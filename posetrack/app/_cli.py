@@ -535,9 +535,10 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     t.add_argument(
         "--keypoints-scale", type=float, metavar="S",
-        help="multiply keypoint pixels by S (keypoints detected on an image of another size "
-        "than depth: 2 for half-size colour). Default: 1, but keypoints that all lie in the "
-        "depth image's top-left quadrant are refused as half-size",
+        help="scale keypoint pixels by S, pixel centre to pixel centre (keypoints detected on "
+        "an image of another size than depth: 2 for half-size colour). Default: 1, but "
+        "keypoints that all lie in the depth image's top-left quadrant are refused as "
+        "half-size",
     )  # fmt: skip
     t.add_argument(
         "--fps", type=float,

@@ -28,6 +28,7 @@ import numpy as np
 
 from .. import _body as body
 from .._camera import Intrinsics
+from .._depthobs import NO_FLOOR
 from .._so3 import quat_normalize
 from .._tracker import STATUS_NAMES, TrackResult
 from .._world import FRAMES, WorldFrame, camera_frame, floor_frame, transform_params
@@ -176,12 +177,8 @@ def output_frame(result: TrackResult, name: str = "camera") -> WorldFrame:
     tracked = np.flatnonzero(np.asarray(result.status) == 0)
     if not len(tracked):
         raise ValueError("floor frame: no frame was tracked, so there is no pelvis to stand on")
-    if result.floor is None:
-        raise ValueError(
-            "floor frame: the tracker found no floor plane in this recording (it needs a "
-            "visible, near-horizontal floor under the person); use --frame camera"
-        )
-    return floor_frame(result.floor, result.params[tracked[0], :3])
+    floor = NO_FLOOR if result.floor is None else result.floor  # floor_frame refuses it
+    return floor_frame(floor, result.params[tracked[0], :3])
 
 
 @dataclasses.dataclass(frozen=True)

@@ -241,7 +241,9 @@ def write_video(
                 finally:
                     writer.close()
                 if writer.frames and path.stat().st_size == 0:
-                    raise OSError(f"{path}: an MP4 writer ({writer.codec}) opened but wrote nothing")
+                    raise OSError(
+                        f"{path}: an MP4 writer ({writer.codec}) opened but wrote nothing"
+                    )
                 return path
             writer.close()
             path.unlink(missing_ok=True)

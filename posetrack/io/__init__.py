@@ -36,14 +36,14 @@ from ._openpose import COCO18_NAMES as COCO18_NAMES
 from ._openpose import KeypointFrame as KeypointFrame
 from ._openpose import read_openpose_json as read_openpose_json
 from ._openpose import write_openpose_json as write_openpose_json
-from ._trc import read_trc as read_trc
-from ._trc import write_trc as write_trc
 from ._recording import Recording as Recording
 from ._recording import load_recording as load_recording
 from ._rgb import RgbFrames as RgbFrames
 from ._rgb import RgbVideo as RgbVideo
 from ._rgb import read_rgb as read_rgb
 from ._rgb import write_rgb as write_rgb
+from ._trc import read_trc as read_trc
+from ._trc import write_trc as write_trc
 
 __all__ = [
     "MARKER_NAME",
@@ -75,6 +75,7 @@ __all__ = [
     "read_openpose_json",
     "read_poses_npz",
     "read_rgb",
+    "read_trc",
     "write_bvh",
     "write_depth_png",
     "write_easymocap",
@@ -82,4 +83,5 @@ __all__ = [
     "write_openpose_json",
     "write_poses_npz",
     "write_rgb",
+    "write_trc",
 ]

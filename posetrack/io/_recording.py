@@ -103,9 +103,10 @@ def _check_keypoint_resolution(folder: Path, everyone, width: int, height: int) 
         raise InputError(
             folder, "keypoints", f"largest x = {u:.0f}, largest y = {v:.0f}",
             f"all {len(seen)} keypoints lie in the top-left quadrant of the {width}x{height} "
-            f"depth image (largest x {u:.0f}, largest y {v:.0f}), as if detected on an image half the size (OpenPose on downscaled "
-            "colour?); rescale them with --keypoints-scale 2 (keypoints_scale=2), or pass "
-            "--keypoints-scale 1 to use them as they are",
+            f"depth image (largest x {u:.0f}, largest y {v:.0f}), as if detected on an image "
+            "half the size (OpenPose on downscaled colour?); rescale them with "
+            "--keypoints-scale 2 (keypoints_scale=2), or pass --keypoints-scale 1 to use them "
+            "as they are",
         )  # fmt: skip
 
 
@@ -138,8 +139,9 @@ def load_recording(
             observation instead of an error.
         keypoint_margin: pixels outside the image a keypoint may lie and be kept.
         out_of_image: ``"error"`` or ``"drop"`` for keypoints farther outside.
-        keypoints_scale: multiply keypoint pixels by this (keypoints detected on an image of
-            another size than depth, e.g. 2 for OpenPose run on half-size colour). ``None``
+        keypoints_scale: scale keypoint pixels by this, pixel centre to pixel centre
+            (:func:`read_openpose_json`'s ``scale``), for keypoints detected on an image of
+            another size than depth, e.g. 2 for OpenPose run on half-size colour. ``None``
             (default): 1, but a recording whose keypoints all lie in the top-left quadrant of
             the depth image is refused (that is what half-size keypoints look like; pass 1 to
             use them as they are).
@@ -260,7 +262,10 @@ def load_recording(
         if keypoints_scale is None:
             _check_keypoint_resolution(sources["keypoints"][0], everyone, width, height)
         elif kp_scale != 1.0:
-            notes.append(f"keypoints: pixel coordinates multiplied by {kp_scale:g}")
+            notes.append(
+                f"keypoints: pixel coordinates multiplied by {kp_scale:g} (pixel centre to "
+                "pixel centre)"
+            )
         if person_id is not None and not (person_index >= 0).any():
             raise InputError(
                 sources["keypoints"][0],

@@ -3,7 +3,8 @@
 The layout OpenSim's ``TRCFileAdapter`` reads (tab-separated)::
 
     PathFileType  4  (X/Y/Z)  motion.trc
-    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame  OrigNumFrames
+    DataRate  CameraRate  NumFrames  NumMarkers  Units  OrigDataRate  OrigDataStartFrame
+        OrigNumFrames  (one line)
     30.000000  30.000000  120  18  m  30.000000  1  120
     Frame#  Time  Nose  <tab><tab>  Neck  ...
             X1  Y1  Z1  X2  Y2  Z2  ...
@@ -114,7 +115,9 @@ def read_trc(path: str | os.PathLike[str]) -> dict:
             float(head["DataRate"]), int(head["NumFrames"]), int(head["NumMarkers"])
         )  # fmt: skip
     except (KeyError, ValueError) as e:
-        raise InputError(path, "line 3", lines[2], f"has no valid rate/frames/markers ({e})")
+        raise InputError(
+            path, "line 3", lines[2], f"has no valid rate/frames/markers ({e})"
+        ) from e
     names = [n.strip() for n in lines[3].split("\t")[2:] if n.strip()]
     if len(names) != n_markers:
         raise InputError(path, "line 4", lines[3], f"names {len(names)} markers, not {n_markers}")
