@@ -60,6 +60,8 @@ from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
 from ._metrics import swapped_limb_frames as swapped_limb_frames
 from ._metrics import swapped_limbs as swapped_limbs
+from ._many import StepBatcher as StepBatcher
+from ._many import track_many as track_many
 from ._observe import Landmarks as Landmarks
 from ._observe import lift_keypoints as lift_keypoints
 from ._programs import enable_cache as enable_cache
@@ -120,6 +122,8 @@ __all__ = [
     "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
+    # many recordings at once
+    "StepBatcher", "track_many",
     # start-up: compiled programs kept on disk
     "enable_cache",
     # the motion model

@@ -326,7 +326,9 @@ def _frames(joint_offs: Array, params: Array):
     # Level-1 frames are stored in _LEVEL1 order; their parents for level 2 are at known spots.
     pos = {int(j): i for i, j in enumerate(_LEVEL1)}
     par = np.array([pos[int(p)] for p in _LEVEL2_PARENT], np.int32)
-    Rw2 = jnp.einsum("jab,jbc->jac", Rw1[par], R[_LEVEL2])
+    # A broadcast product, not einsum's batched dot: XLA's HLO verifier rejects the batched
+    # dot once the tracker step is vmapped over sequences as well as hypotheses (track_many).
+    Rw2 = jnp.sum(Rw1[par][:, :, :, None] * R[_LEVEL2][:, None, :, :], axis=2)
     c2 = c1[par] + jnp.einsum("jab,jb->ja", Rw1[par], joint_offs[_LEVEL2])
     Rw = jnp.concatenate([R0[None], Rw1, Rw2])[_ORDER]
     c = jnp.concatenate([t[None], c1, c2])[_ORDER]

@@ -29,6 +29,7 @@ README). Off, a :class:`Program` is an ahead-of-time compiled ``jax.jit``.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import copyreg
 import dataclasses
 import functools
@@ -69,6 +70,26 @@ class ProgramEvent:
 
 
 _log: list[ProgramEvent] = []
+
+# Runs of programs from several threads at once (track_many's workers) go one at a time: two
+# big vmapped programs executing together on XLA's CPU thread pool were seen to hang here,
+# a known wedge of that pool (PyAutoFit issue 1530; jax issue 25861).
+_serial = {"depth": 0}
+_serial_lock = threading.Lock()
+_run_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def serial_execution():
+    """Within this block, every :class:`Program` run waits for the previous one to finish
+    (whatever thread started it) and returns finished results."""
+    with _serial_lock:
+        _serial["depth"] += 1
+    try:
+        yield
+    finally:
+        with _serial_lock:
+            _serial["depth"] -= 1
 
 
 def log() -> list[ProgramEvent]:
@@ -212,6 +233,9 @@ class Program:
         if ready is None:
             ready = self._ensure(sig, static, tree, avals)
         compiled, out_tree = ready
+        if _serial["depth"]:
+            with _run_lock:
+                return jax.tree.unflatten(out_tree, jax.block_until_ready(compiled(*leaves)))
         return jax.tree.unflatten(out_tree, compiled(*leaves))
 
     def prepare(self, *args, background: bool = False) -> None:

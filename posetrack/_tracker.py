@@ -394,6 +394,8 @@ class Tracker:
         self.smooth_s = 0.0
         self.refine_s = 0.0
         self._prepare_started = False
+        # (StepBatcher, slot) when track_many runs this tracker's steps batched with others'.
+        self._batched = None
         self._found_floor: np.ndarray | None = None  # the first in this run (TrackResult.floor)
         self._forget_person()
         self._reset_motion()
@@ -504,6 +506,10 @@ class Tracker:
                 f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
             )))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
+        if self._batched is not None:  # track_many: the batcher compiles the batched step
+            self._batched[0].prepare(step_args)
+            prepare_in_background([*jobs, *later])
+            return
         if not background:
             for prog, args in (*jobs, (step, step_args), *later):
                 prog.prepare(*args)
@@ -728,7 +734,10 @@ class Tracker:
             return None, NO_OBSERVATION
         self._depth_fit = depth_fit  # run() keeps a few for the body-shape refinement
         t0 = time.perf_counter()
-        state, est = step(
+        run_step = step if self._batched is None else partial(
+            self._batched[0].step, self._batched[1]
+        )
+        state, est = run_step(
             self.config, self.shape, self.intrinsics, self._floor, self._state, depth_fit, kp, conf
         )
         jax.block_until_ready(est)
@@ -846,6 +855,8 @@ class Tracker:
                 n3d, stretch = int(has_d[t].sum()), t * n_keep // T
                 if n3d > kept.get(stretch, (-1,))[0]:
                     kept[stretch] = (n3d, t, self._depth_fit)
+        if self._batched is not None:  # no more steps: the other sequences need not wait
+            self._batched[0].leave(self._batched[1])
         per_frame = None
         if self.mode == "online" and self.lag > 0:
             # The newest frames' smoothed poses were never lagged out: smooth the last window.

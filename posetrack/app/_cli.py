@@ -273,6 +273,12 @@ def _track(args) -> int:
     return 0
 
 
+def _track_many(args) -> int:
+    from ._many import track_many_command
+
+    return track_many_command(args)
+
+
 def _person_summary(result, frame_ids, rule) -> dict:
     """Who was followed, for the summary line and summary.json."""
     import numpy as np
@@ -564,6 +570,43 @@ def build_parser() -> argparse.ArgumentParser:
         "--out", required=True, metavar="DIR", help="output folder (replaced as a whole)"
     )
     t.set_defaults(func=_track)
+
+    m = sub.add_parser(
+        "track-many",
+        help="track every recording of a manifest (CSV), several at a time, resumably",
+        description="Track every recording listed in a manifest: CSV with a header row and "
+        "columns name,depth,keypoints,intrinsics (optional: rgb, depth_scale); relative paths "
+        "are relative to the manifest's folder. Each recording's files (those of `posetrack "
+        "track`) go to DIR/<name>/, written atomically when it is done; DIR/summary.json lists "
+        "every recording as done, failed (with the error) or pending. Re-running over the same "
+        "DIR skips the recordings already done. --batch recordings run side by side, their "
+        "tracker steps batched into one compiled call per frame.",
+        epilog="Exit codes: 0 all done, 2 bad manifest or arguments (one 'error:' line, "
+        "nothing tracked) or some recordings failed (listed in DIR/summary.json), 1 system "
+        "error, 130 interrupted (finished recordings are kept).",
+    )  # fmt: skip
+    m.add_argument("--manifest", required=True, metavar="FILE.csv", help="the recordings")
+    m.add_argument("--out", required=True, metavar="DIR", help="output folder (DIR/<name>/)")
+    m.add_argument(
+        "--batch", type=int, default=8, metavar="B",
+        help="recordings tracked side by side (default: %(default)s)",
+    )  # fmt: skip
+    _add_method_options(m)
+    _add_mode_options(m)
+    m.add_argument("--no-video", action="store_true", help="do not write overlay videos")
+    m.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.add_argument(
+        "--num-processes", type=int, metavar="P",
+        help="processes sharing the manifest (jax.distributed; with --process-id and "
+        "--coordinator)",
+    )  # fmt: skip
+    m.add_argument("--process-id", type=int, metavar="I", help="this process, 0..P-1")
+    m.add_argument(
+        "--coordinator", metavar="HOST:PORT",
+        help="address of process 0's coordinator (jax.distributed.initialize)",
+    )  # fmt: skip
+    m.set_defaults(func=_track_many)
 
     w = sub.add_parser(
         "warmup",

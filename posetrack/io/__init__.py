@@ -29,6 +29,8 @@ from ._frames import format_ranges as format_ranges
 from ._frames import frame_number as frame_number
 from ._frames import list_frames as list_frames
 from ._intrinsics import read_intrinsics_json as read_intrinsics_json
+from ._manifest import ManifestRow as ManifestRow
+from ._manifest import read_manifest as read_manifest
 from ._intrinsics import write_intrinsics_json as write_intrinsics_json
 from ._openpose import BODY25_NAMES as BODY25_NAMES
 from ._openpose import BODY25_TO_COCO18 as BODY25_TO_COCO18
@@ -55,6 +57,7 @@ __all__ = [
     "DepthSequence",
     "InputError",
     "KeypointFrame",
+    "ManifestRow",
     "Recording",
     "RgbFrames",
     "RgbVideo",
@@ -72,6 +75,7 @@ __all__ = [
     "read_bvh",
     "read_depth",
     "read_intrinsics_json",
+    "read_manifest",
     "read_openpose_json",
     "read_poses_npz",
     "read_rgb",

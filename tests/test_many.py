@@ -1,0 +1,222 @@
+"""Many recordings at once: ``track_many`` (batched steps), the manifest, ``posetrack
+track-many`` (resumable, failures recorded, several processes, SIGKILL).
+
+Small on purpose: 160x120, 10 frames, per-frame mode, B = 2, so the batched step compiles once
+for the whole module (the subprocesses read it from the shared cache).
+"""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import posetrack as pt
+from posetrack.app import main
+from posetrack.io import InputError, read_manifest
+
+ROOT = Path(__file__).resolve().parents[1]
+W, H, T = 160, 120, 10
+
+
+@pytest.fixture(scope="module")
+def seqs():
+    return [pt.synth.generate(s, n_frames=T, width=W, height=H, with_rgb=False) for s in range(3)]
+
+
+@pytest.fixture(scope="module")
+def folders(seqs, tmp_path_factory):
+    root = tmp_path_factory.mktemp("many")
+    for i, s in enumerate(seqs):
+        pt.synth.save(s, root / f"rec{i}")
+    return root
+
+
+def _manifest(root: Path, rows: list[str], name="m.csv") -> Path:
+    path = root / name
+    path.write_text("name,depth,keypoints,intrinsics\n" + "".join(r + "\n" for r in rows))
+    return path
+
+
+def _row(name: str, rec: str) -> str:
+    return f"{name},{rec}/depth,{rec}/keypoints,{rec}/intrinsics.json"
+
+
+def test_track_many_equals_single_runs(seqs):
+    """Batched steps (B = 2 over 3 sequences: one slot refilled) give each sequence the poses
+    it gets alone, up to float rounding (D within 1 mm, same frame statuses)."""
+    inputs = [(s.intrinsics, s.depth, s.keypoints2d, s.confidence) for s in seqs]
+    done = []
+    many = pt.track_many(
+        inputs, batch=2, mode="per-frame", on_result=lambda i, r: done.append(i)
+    )
+    assert sorted(done) == [0, 1, 2]
+    for s, r in zip(seqs, many):
+        alone = pt.track(s.depth, s.keypoints2d, s.confidence, s.intrinsics, mode="per-frame")
+        np.testing.assert_array_equal(r.status, alone.status)
+        d_many = np.nanmean(np.linalg.norm(r.keypoints3d - s.joints3d, axis=-1))
+        d_alone = np.nanmean(np.linalg.norm(alone.keypoints3d - s.joints3d, axis=-1))
+        assert abs(d_many - d_alone) < 1e-3, (d_many, d_alone)
+        assert d_many < 0.1  # and both actually track
+
+
+def test_track_many_keeps_going_past_a_bad_sequence(seqs):
+    s = seqs[0]
+    bad = (s.intrinsics, s.depth, s.keypoints2d[:-1], s.confidence[:-1])  # lengths disagree
+    good = (s.intrinsics, s.depth, s.keypoints2d, s.confidence)
+    res = pt.track_many([bad, good], batch=2, mode="per-frame", errors="return")
+    assert isinstance(res[0], ValueError) and "keypoint frames" in str(res[0])
+    assert isinstance(res[1], pt.TrackResult)
+    with pytest.raises(ValueError, match="keypoint frames"):
+        pt.track_many([bad], batch=2, mode="per-frame")
+    with pytest.raises(ValueError, match="batch"):
+        pt.track_many([good], batch=0)
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("name,depth,keypoints\n", "no column 'intrinsics'"),
+        ("name,depth,keypoints,intrinsics,colour\n", "unknown or repeated column 'colour'"),
+        ("name,depth,keypoints,intrinsics\n", "lists no recording"),
+        ("name,depth,keypoints,intrinsics\n" + _row("a", "rec0") + "\n" + _row("a", "rec1"),
+         r"row 3 \(a\): name: 'a' is also the name of row 2"),
+        ("name,depth,keypoints,intrinsics\n" + _row("../x", "rec0"), "is not a folder name"),
+        ("name,depth,keypoints,intrinsics\n" + _row("a", "nowhere"),
+         r"row 2 \(a\): depth: .*nowhere/depth: no such folder"),
+        ("name,depth,keypoints,intrinsics,depth_scale\n" + _row("a", "rec0") + ",-5",
+         r"row 2 \(a\): depth_scale: must be a positive number"),
+        ("name,depth,keypoints,intrinsics\na,rec0/depth,rec0/keypoints,rec0/depth\n",
+         r"row 2 \(a\): intrinsics: .*not a file"),
+    ],
+)  # fmt: skip
+def test_manifest_errors_name_row_and_column(folders, text, match):
+    path = folders / "bad.csv"
+    path.write_text(text)
+    with pytest.raises(InputError, match=match):
+        read_manifest(path)
+
+
+def test_manifest_resolves_relative_paths(folders):
+    rows = read_manifest(_manifest(folders, [_row("a", "rec0"), _row("b", "rec1")]))
+    assert [r.name for r in rows] == ["a", "b"]
+    assert rows[0].depth == folders / "rec0" / "depth" and rows[0].frames == T
+    assert rows[1].intrinsics.width == W and rows[1].depth_scale == 1000.0
+
+
+def _cli(*extra: str) -> list[str]:
+    return ["track-many", "--batch", "2", "--per-frame", "--no-video", "--quiet", *extra]
+
+
+def test_cli_tracks_resumes_and_records_failures(folders, capsys):
+    manifest = _manifest(folders, [_row("a", "rec0"), _row("b", "rec1"), _row("c", "rec2")])
+    out = folders / "out"
+    assert main(_cli("--manifest", str(manifest), "--out", str(out))) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"done": 3, "failed": 0, "pending": 0}
+    for name, rec in zip("abc", ("rec0", "rec1", "rec2")):
+        one = json.loads((out / name / "summary.json").read_text())
+        assert one["frames"] == T and one["track_many"]["row"] == "abc".index(name) + 2
+        assert (out / name / "poses.npz").is_file() and (out / name / "motion.bvh").is_file()
+    stamp = (out / "a" / "poses.npz").stat().st_mtime_ns
+
+    # A re-run skips what is done; a new row that fails to load is recorded, not fatal.
+    rec3 = folders / "rec3"
+    pt.synth.save(pt.synth.generate(9, n_frames=T, width=W, height=H, with_rgb=False), rec3)
+    bad = sorted((rec3 / "keypoints").iterdir())[4]
+    bad.write_text('{"people": [{"pose_keypoints_2d": [1, 2]}]}')
+    manifest = _manifest(folders, [_row("a", "rec0"), _row("b", "rec1"), _row("c", "rec2"),
+                                   _row("d", "rec3")])  # fmt: skip
+    capsys.readouterr()
+    assert main(_cli("--manifest", str(manifest), "--out", str(out))) == 2
+    err = capsys.readouterr().err
+    assert "3 already done" in err and f"{bad.name}" in err and "row 5" in err
+    assert (out / "a" / "poses.npz").stat().st_mtime_ns == stamp
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"done": 3, "failed": 1, "pending": 0}
+    assert "has 2 numbers" in summary["recordings"]["d"]["error"]
+    assert not (out / "d").exists()
+
+    # Other settings than the finished folders': refused before anything runs.
+    args = _cli("--manifest", str(manifest), "--out", str(out))
+    args.remove("--per-frame")
+    assert main(args) == 2
+    assert "was tracked with" in capsys.readouterr().err
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _spawn(args: list[str], log: Path) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen(
+        [sys.executable, "-m", "posetrack", *args], stdout=log.open("w"),
+        stderr=subprocess.STDOUT, env=env,
+    )  # fmt: skip
+
+
+def test_two_processes_share_the_manifest_once(folders):
+    """Two processes on 127.0.0.1 (jax.distributed) split the rows; together they track each
+    once, with the poses of a single-process run."""
+    manifest = _manifest(folders, [_row("a", "rec0"), _row("b", "rec1"), _row("c", "rec2")],
+                         "m2.csv")  # fmt: skip
+    out = folders / "out2"
+    port = _free_port()
+    procs = [
+        _spawn(_cli("--manifest", str(manifest), "--out", str(out), "--num-processes", "2",
+                    "--process-id", str(i), "--coordinator", f"127.0.0.1:{port}"),
+               folders / f"p{i}.log")  # fmt: skip
+        for i in range(2)
+    ]
+    for p in procs:
+        assert p.wait(timeout=600) == 0, (folders / "p0.log").read_text() + (
+            folders / "p1.log"
+        ).read_text()
+    logs = [(folders / f"p{i}.log").read_text() for i in range(2)]
+    assert "2 to track (process 0 of 2)" in logs[0]
+    assert "1 to track (process 1 of 2)" in logs[1]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"done": 3, "failed": 0, "pending": 0}
+    single = folders / "out"  # the single-process run of the test above, same settings
+    if not (single / "c" / "poses.npz").is_file():
+        pytest.skip("the single-process run did not run first")
+    for name in "abc":
+        a = np.load(out / name / "poses.npz")["keypoints3d"]
+        b = np.load(single / name / "poses.npz")["keypoints3d"]
+        np.testing.assert_allclose(a, b, atol=1e-3)
+
+
+def test_sigkill_loses_only_the_batch_in_flight(folders):
+    rows = [_row(n, f"rec{i % 3}") for i, n in enumerate("pqrstu")]
+    manifest = _manifest(folders, rows, "m3.csv")
+    out = folders / "out3"
+    log = folders / "k.log"
+    proc = _spawn(_cli("--manifest", str(manifest), "--out", str(out)), log)
+    deadline = time.time() + 600
+    while not any((out / n / "summary.json").is_file() for n in "pqrstu"):
+        assert proc.poll() is None, log.read_text()
+        assert time.time() < deadline, log.read_text()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = {n for n in "pqrstu" if (out / n).exists()}
+    assert finished and len(finished) < 6
+    for n in finished:  # never half-written: a folder is there only when complete
+        assert (out / n / "summary.json").is_file() and (out / n / pt.io.MARKER_NAME).is_file()
+    stamps = {n: (out / n / "poses.npz").stat().st_mtime_ns for n in finished}
+    proc = _spawn(_cli("--manifest", str(manifest), "--out", str(out)), log)
+    assert proc.wait(timeout=600) == 0, log.read_text()
+    assert f"{len(finished)} already done" in log.read_text()
+    assert {n: (out / n / "poses.npz").stat().st_mtime_ns for n in finished} == stamps
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"] == {"done": 6, "failed": 0, "pending": 0}
+    assert not list(out.glob(".*.tmp"))  # the killed run's unfinished folders are gone
