@@ -638,8 +638,12 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except KeyboardInterrupt:
         # The progress bar may have left the cursor mid-line.
-        print("\ninterrupted: nothing was written (outputs appear only when complete)",
-              file=sys.stderr)  # fmt: skip
+        if args.command == "track-many":
+            print("\ninterrupted: the recordings already done are kept; run the same command "
+                  "again to track the rest", file=sys.stderr)  # fmt: skip
+        else:
+            print("\ninterrupted: nothing was written (outputs appear only when complete)",
+                  file=sys.stderr)  # fmt: skip
         return 130
     except (ValueError, FileExistsError) as e:  # InputError is a ValueError
         print(f"error: {e}", file=sys.stderr)
