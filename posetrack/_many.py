@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
@@ -66,12 +65,6 @@ class StepBatcher:
         self._results: dict[int, Any] = {}
         self._next = 0
         self._prepared = False
-        self.calls = 0
-        """Batched calls made."""
-        self.filled = 0
-        """Sequence steps run (``filled / (calls * batch)``: how full the batches were)."""
-        self.seconds: list[float] = []
-        """Wall seconds of every batched call after the first (which compiles)."""
 
     def join(self) -> int:
         """A new sequence in flight; returns its slot."""
@@ -125,12 +118,7 @@ class StepBatcher:
         slots = sorted(self._pending)
         args = [self._pending.pop(s) for s in slots]
         try:
-            t0 = time.perf_counter()
             out = jax.device_get(step_many(self.config, *_stack(args, self.batch)))
-            if self.calls:
-                self.seconds.append(time.perf_counter() - t0)
-            self.calls += 1
-            self.filled += len(slots)
             for i, s in enumerate(slots):
                 self._results[s] = jax.tree.map(lambda x, i=i: x[i], out)
         except Exception as e:  # every waiting sequence sees the failure

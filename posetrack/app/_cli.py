@@ -186,10 +186,7 @@ def _track(args) -> int:
     t_tracked = time.perf_counter()
     person = _person_summary(result, rec.frame_ids, args.person)
     if kp2d.ndim == 4:  # the followed person's detections, for the overlay and the files
-        pick = np.maximum(result.person_index, 0)
-        followed = result.person_index >= 0
-        kp2d = kp2d[np.arange(n), pick]
-        conf = np.where(followed[:, None], conf[np.arange(n), pick], np.float32(0))
+        kp2d, conf = _followed_detections(result, kp2d, conf)
 
     info = {
         "inputs": {
@@ -277,6 +274,18 @@ def _track_many(args) -> int:
     from ._many import track_many_command
 
     return track_many_command(args)
+
+
+def _followed_detections(result, people2d, people_conf):
+    """Each frame's detection of the followed person, from every person's ``(T, P, 18, 2)``
+    keypoints and ``(T, P, 18)`` confidences (confidence 0 where nobody was followed)."""
+    import numpy as np
+
+    t = np.arange(len(result.person_index))
+    pick = np.maximum(result.person_index, 0)
+    followed = result.person_index >= 0
+    conf = np.where(followed[:, None], people_conf[t, pick], np.float32(0))
+    return people2d[t, pick], conf
 
 
 def _person_summary(result, frame_ids, rule) -> dict:

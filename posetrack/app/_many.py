@@ -106,11 +106,9 @@ def _join_processes(args) -> tuple[int, int]:
 
 
 def track_many_command(args) -> int:
-    import numpy as np
-
     from .. import io
     from .._many import track_many
-    from ._cli import _mode, _person_summary, _refine, _tracker_config
+    from ._cli import _followed_detections, _mode, _person_summary, _refine, _tracker_config
     from ._export import check_output_dir, save_results, status_counts
     from ._progress import ProgressBar
 
@@ -143,7 +141,8 @@ def track_many_command(args) -> int:
                 "choose another --out"
             )
         skipped.append(row)
-    todo = [r for r in todo if rows.index(r) % count == index]
+    position = {r.name: i for i, r in enumerate(rows)}  # names are unique
+    todo = [r for r in todo if position[r.name] % count == index]
     out.mkdir(parents=True, exist_ok=True)
     # What a killed run left half-built (atomic_dir's hidden folders; each row has one owner
     # process, so no other process is building these).
@@ -186,10 +185,6 @@ def track_many_command(args) -> int:
             print(f"\nerror: {row.name} (row {row.line}): {msg}", file=sys.stderr)
             _record(out, manifest, names, {row.name: {"status": "failed", "error": msg}})
             return
-        n = len(rec)
-        kp2d, conf = rec.people2d, rec.people_confidence
-        pick = np.maximum(result.person_index, 0)
-        followed = result.person_index >= 0
         info = {
             "inputs": {
                 "depth": str(row.depth), "keypoints": str(row.keypoints),
@@ -206,10 +201,7 @@ def track_many_command(args) -> int:
         save_results(
             out / row.name, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids,
             fps=rec.fps, rgb=rec.rgb, depth=rec.depth, video=not args.no_video,
-            detections=(
-                kp2d[np.arange(n), pick],
-                np.where(followed[:, None], conf[np.arange(n), pick], np.float32(0)),
-            ),
+            detections=_followed_detections(result, rec.people2d, rec.people_confidence),
             info=info, progress=False,
         )  # fmt: skip
         counts = status_counts(result.status)
