@@ -178,6 +178,9 @@ class _Frames(eqx.Module):
     """Unit viewing ray of each landmark (the surface offset is added along it)."""
     mpp: Float[Array, "frame kpt"]
     """Metres per pixel of the 2D residuals (at the start pose)."""
+    weight: Float[Array, " frame"]
+    """1 for a frame of the data, 0 for padding (a copy that only fills the program's frame
+    count: :func:`refine_shape`'s ``pad_to``)."""
 
 
 def soft_delta(
@@ -240,9 +243,11 @@ def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
     deltas, lms = jax.vmap(
         lambda p, fr: _frame_loss(shape, p, fr, intrinsics, settings, res_settings)
     )(poses, frames)
-    data = jnp.mean(settings.delta_weight * deltas + settings.landmark_weight * lms)
+    w = frames.weight
+    n = jnp.sum(w)
+    data = jnp.sum(w * (settings.delta_weight * deltas + settings.landmark_weight * lms)) / n
     prior = settings.prior_weight * jnp.sum((u / settings.prior_sigma) ** 2)
-    return data + prior, (jnp.mean(deltas), jnp.mean(lms))
+    return data + prior, (jnp.sum(w * deltas) / n, jnp.sum(w * lms) / n)
 
 
 @program("refine_shape", static_argnums=(0,))
@@ -318,10 +323,12 @@ def _observe_frames(config: TrackerConfig, intrinsics, floor, shape, poses, dept
     return (*maps, jax.tree.map(lambda x: x[0], small_intr))
 
 
-def _frames_from_maps(z_d, z_fg, known, lm, rays, mpp, small_intr, origin, size) -> _Frames:
+def _frames_from_maps(
+    z_d, z_fg, known, lm, rays, mpp, small_intr, origin, size, weight
+) -> _Frames:
     """The objective's :class:`_Frames`: the maps cropped to windows of ``size`` (h, w) at
-    ``origin`` (frame, 2: row, col), with their pixel rays. Traceable (used to build the
-    program signature ahead of time, :func:`refine_programs`)."""
+    ``origin`` (frame, 2: row, col), with their pixel rays and ``weight`` (frame,). Traceable
+    (used to build the program signature ahead of time, :func:`refine_programs`)."""
     F = z_d.shape[0]
     h, w = size
     rows = origin[:, :1] + np.arange(h)[None]  # (frame, h)
@@ -342,6 +349,7 @@ def _frames_from_maps(z_d, z_fg, known, lm, rays, mpp, small_intr, origin, size)
         landmarks=lm,
         rays=rays,
         mpp=mpp,
+        weight=jnp.asarray(weight, _DTYPE),
     )
 
 
@@ -364,7 +372,9 @@ def refine_programs(
     z_d, small_intr = maps[0], maps[-1]
     size = z_d.shape[1:]
     frames_sig = jax.eval_shape(
-        lambda *m: _frames_from_maps(*m[:6], m[-1], np.zeros((frames, 2), int), size),
+        lambda *m: _frames_from_maps(
+            *m[:6], m[-1], np.zeros((frames, 2), int), size, np.zeros(frames, np.float32)
+        ),
         *maps[:6], maps[-1],
     )
     return [
@@ -429,6 +439,7 @@ def refine_shape(
     config: TrackerConfig | None = None,
     floor="auto",
     depth_scale: float = 1000.0,
+    pad_to: int | None = None,
 ) -> tuple[BodyShape, dict]:
     """Refine body dimensions (and the given poses) against the depth of F frames.
 
@@ -450,6 +461,10 @@ def refine_shape(
         floor: ``"auto"`` (fit on the first frame with the tracker's rule), ``None`` (no floor
             removal) or ``(nx, ny, nz, d)``.
         depth_scale: sensor units per metre of uint16 depth.
+        pad_to: compile for this many frames (at least F): the extra frames are copies of
+            the first with weight 0, so they change nothing, and clips that keep different
+            numbers of frames share one compiled program (``Tracker`` pads to
+            ``settings.frames``). ``None``: F.
 
     Returns:
         ``(refined, report)``: the refined :class:`BodyShape` (float32), and a dict with
@@ -519,6 +534,14 @@ def refine_shape(
     if floor.shape != (4,) or not np.all(np.isfinite(floor)):
         raise ValueError(f"refine_shape: floor must be (nx, ny, nz, d), got {floor!r}")
 
+    if pad_to is not None and pad_to < F:
+        raise ValueError(f"refine_shape: pad_to must be at least the {F} frames, got {pad_to}")
+    weight = np.ones(F, np.float32)
+    if pad_to is not None and pad_to > F:
+        idx = np.concatenate([np.arange(F), np.zeros(pad_to - F, int)])
+        P, D, K, C = P[idx], D[idx], K[idx], C[idx]
+        weight = (np.arange(pad_to) < F).astype(np.float32)
+
     t0 = time.perf_counter()
     cfg = config.replace(score_width=settings.width, score_height=settings.height)
     intr = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
@@ -532,10 +555,10 @@ def refine_shape(
         small = jax.tree.map(float, small_intr)
         origin, size = _windows(z_fg, caps, small, margin=4, step=16)
     else:
-        origin, size = np.zeros((F, 2), int), z_d.shape[1:]
+        origin, size = np.zeros((len(P), 2), int), z_d.shape[1:]
     host = partial(jax.tree.map, np.asarray)
     frames = jax.tree.map(jnp.asarray, _frames_from_maps(
-        *host((z_d, z_fg, known, lm, rays, mpp)), host(small_intr), origin, size
+        *host((z_d, z_fg, known, lm, rays, mpp)), host(small_intr), origin, size, weight
     ))  # fmt: skip
     u, poses_out, history = refine_shape_core(settings, base, poses, frames, intr)
     u = np.asarray(u, dtype=np.float64)
@@ -555,7 +578,7 @@ def refine_shape(
         "factors": factors,
         "before": summary(history[0]),
         "after": summary(history[-1]),
-        "params": np.asarray(poses_out, dtype=np.float64),
+        "params": np.asarray(poses_out, dtype=np.float64)[:F],
         "history": history,
         "seconds": seconds,
         "frames": F,

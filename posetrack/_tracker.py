@@ -930,7 +930,7 @@ class Tracker:
         refined, report = refine_shape(
             self.shape, params[t], np.stack([k[2] for k in kept]), kp2[t], lm_conf[t],
             self.intrinsics, settings=self._refine_settings(), config=self.config,
-            floor=np.asarray(self._floor),
+            floor=np.asarray(self._floor), pad_to=self.refine.frames,
         )  # fmt: skip
         report["frames_used"] = t
         self.refine_report = report

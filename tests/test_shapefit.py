@@ -111,6 +111,28 @@ def test_refine_shape_recovers_changed_fields(refined_full):
     assert report["params"].shape == (4, 43)
 
 
+def test_padding_frames_change_nothing(data, refined_full):
+    """``pad_to``: zero-weight copies that only fill the compiled frame count leave the result
+    as it was (a tracker pads every clip to ``frames``: one program for any count). Not bit
+    for bit: the sums over frames round differently, and Adam turns rounding in fields
+    without gradient into small steps; the factors agree to within 1 %."""
+    params, depths, kps, confs = data
+    settings = pt.ShapeFitSettings(prior_weight=0.001, sharpness=200.0, **FAST)
+    kw = dict(settings=settings, config=CONFIG, floor=None)
+    ref_shape, ref = refined_full
+    same, same_report = pt.refine_shape(START, params, depths, kps, confs, INTR, pad_to=4, **kw)
+    np.testing.assert_array_equal(same_report["history"], ref["history"])  # nothing padded
+    shape, report = pt.refine_shape(START, params, depths, kps, confs, INTR, pad_to=7, **kw)
+    assert report["params"].shape == (4, 43) and report["frames"] == 4
+    np.testing.assert_allclose(report["history"][:3], ref["history"][:3], rtol=1e-5)
+    for field, factor in ref["factors"].items():
+        assert abs(report["factors"][field] - factor) < 0.01, (field, factor, report["factors"])
+    np.testing.assert_allclose(report["params"], ref["params"], atol=0.02)
+    assert abs(report["after"]["loss"] - ref["after"]["loss"]) < 0.01 * ref["after"]["loss"]
+    with pytest.raises(ValueError, match="pad_to"):
+        pt.refine_shape(START, params, depths, kps, confs, INTR, pad_to=3, **kw)
+
+
 def test_unobservable_field_stays_at_prior(refined_full):
     """The head is hidden (no depth, no face keypoints): its scale, 20 % larger in the data,
     stays at the prior's value instead of moving toward it."""
