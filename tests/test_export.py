@@ -25,7 +25,7 @@ from posetrack.app._viz import GREEN, RED
 
 N_FRAMES = 16
 # Same sequence size and configuration as test_cli_track.py: one JAX compilation per session.
-CONFIG = posetrack.TrackerConfig.paper("mht_h", num_hypotheses=2)
+CONFIG = posetrack.TrackerConfig.recommended("mht_h", num_hypotheses=2)
 ELBOW_KNEE_END = {"right_elbow": 4, "left_elbow": 7, "right_knee": 10, "left_knee": 13}
 C = np.array([1.0, -1.0, -1.0])  # camera frame <-> BVH y-up world (a diagonal matrix)
 
