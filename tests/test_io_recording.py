@@ -13,6 +13,7 @@ from posetrack.io import (
     format_ranges,
     frame_number,
     load_recording,
+    read_manifest,
     read_rgb,
     write_depth_png,
     write_intrinsics_json,
@@ -271,3 +272,55 @@ def test_write_rgb_round_trip_keeps_rgb_order(tmp_path):
     with pytest.raises(ValueError, match="cannot encode"):
         write_rgb(tmp_path / "c.notanimage", image)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png"]
+
+
+def _intri_yml(path, cameras):
+    """EasyMocap-style intri.yml (no image size) written by cv2.FileStorage."""
+    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_WRITE)
+    fs.write("names", list(cameras))
+    for name, (fx, cx, cy) in cameras.items():
+        fs.write(f"K_{name}", np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1]]))
+        fs.write(f"dist_{name}", np.array([[0.05, 0, 0, 0, 0]]))
+    fs.release()
+    return path
+
+
+def test_intrinsics_without_a_size_take_the_depth_images(tmp_path):
+    folder = make_recording(tmp_path / "rec")
+    intri = _intri_yml(folder / "intri.yml", {"01": (60.0, 31.5, 23.5), "02": (70.0, 30.0, 20.0)})
+    rec = load_recording(
+        depth_dir=folder / "depth", keypoints_dir=folder / "keypoints",
+        intrinsics_path=f"{intri}#02",
+    )  # fmt: skip
+    k = rec.intrinsics
+    assert (k.width, k.height, float(k.fx), float(k.cx)) == (W, H, 70.0, 30.0)
+    assert rec.notes[0].startswith("intrinsics: EasyMocap intri.yml, camera 02 (OpenCV YAML)")
+    assert "64x48 from the depth images (000000.png;" in rec.notes[0], rec.notes[0]
+    assert any("dist_02" in n and "ignored" in n for n in rec.notes)
+    with pytest.raises(InputError, match="holds 2 cameras") as info:
+        load_recording(depth_dir=folder / "depth", intrinsics_path=intri)
+    assert info.value.path == str(intri) and f"{intri}#01" in str(info.value)
+    # Every depth image must then have the first one's size.
+    write_depth_png(folder / "depth" / "000003.png", np.ones((24, 32)))
+    with pytest.raises(InputError, match="first depth image") as info:
+        load_recording(depth_dir=folder / "depth", intrinsics_path=f"{intri}#01")
+    assert info.value.path == str(folder / "depth" / "000003.png")
+    assert info.value.value == (32, 24) and "64x48" in str(info.value)
+
+
+def test_manifest_row_chooses_a_camera_of_a_sizeless_file(tmp_path):
+    folder = make_recording(tmp_path / "rec")
+    _intri_yml(folder / "intri.yml", {"01": (60.0, 31.5, 23.5), "02": (70.0, 30.0, 20.0)})
+    manifest = tmp_path / "m.csv"
+    manifest.write_text(
+        "name,depth,keypoints,intrinsics\n"
+        "a,rec/depth,rec/keypoints,rec/intri.yml#02\n"
+        "b,rec/depth,rec/keypoints,rec/intrinsics.json\n"
+    )
+    a, b = read_manifest(manifest)
+    assert str(a.intrinsics_path) == f"{folder / 'intri.yml'}#02"
+    assert (a.intrinsics.width, a.intrinsics.height, float(a.intrinsics.fx)) == (W, H, 70.0)
+    assert b.intrinsics.fx == 60.0
+    manifest.write_text("name,depth,keypoints,intrinsics\na,rec/depth,rec/keypoints,rec/intri.yml")
+    with pytest.raises(InputError, match=r"row 2 \(a\): intrinsics: .*holds 2 cameras"):
+        read_manifest(manifest)

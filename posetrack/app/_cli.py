@@ -116,9 +116,16 @@ def _track(args) -> int:
     t_start = time.perf_counter()
     progress = not args.quiet
     detect_keypoints = None
+    if args.tum is not None:
+        if args.rgb is not None:
+            raise ValueError("--rgb is not used with --tum: the sequence's rgb/ is the colour")
+    elif args.intrinsics is None:
+        raise ValueError("--intrinsics FILE is required with --depth (the depth camera's)")
     if args.detect:
-        if args.rgb is None:
-            raise ValueError("--detect needs --rgb DIR|VIDEO (the colour frames to detect in)")
+        if args.rgb is None and args.tum is None:
+            raise ValueError(
+                "--detect needs --rgb DIR|VIDEO (the colour frames to detect in) or --tum"
+            )
         if args.keypoints is not None:
             raise ValueError("give either --keypoints DIR or --detect, not both")
         if args.person_id is not None:
@@ -134,13 +141,25 @@ def _track(args) -> int:
         raise ValueError(f"--fps must be positive, got {args.fps}")
     out = check_output_dir(args.out)  # before the long part: a bad --out fails now
 
-    rec = io.load_recording(
-        depth_dir=args.depth, keypoints_dir=args.keypoints, intrinsics_path=args.intrinsics,
-        rgb=args.rgb, depth_scale=args.depth_scale, person_id=args.person_id,
-        allow_missing=args.allow_missing,
-        out_of_image="drop" if args.drop_outside else "error",
+    options = dict(
+        keypoints_dir=args.keypoints, intrinsics_path=args.intrinsics, person_id=args.person_id,
+        allow_missing=args.allow_missing, out_of_image="drop" if args.drop_outside else "error",
         keypoints_scale=args.keypoints_scale,
     )  # fmt: skip
+    if args.tum is not None:
+        depth_scale = io.TUM_DEPTH_SCALE if args.depth_scale is None else args.depth_scale
+        max_difference = args.tum_max_difference
+        rec = io.load_tum(
+            args.tum, depth_scale=depth_scale, **options,
+            max_difference=io.TUM_MAX_DIFFERENCE if max_difference is None else max_difference,
+        )  # fmt: skip
+    else:
+        if args.tum_max_difference is not None:
+            raise ValueError("--tum-max-difference applies to --tum only")
+        depth_scale = 1000.0 if args.depth_scale is None else args.depth_scale
+        rec = io.load_recording(
+            depth_dir=args.depth, rgb=args.rgb, depth_scale=depth_scale, **options
+        )
     notes = list(rec.notes)
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
@@ -190,12 +209,13 @@ def _track(args) -> int:
 
     info = {
         "inputs": {
-            "depth": os.path.abspath(args.depth),
+            "depth": None if args.depth is None else os.path.abspath(args.depth),
+            "tum": None if args.tum is None else os.path.abspath(args.tum),
             "keypoints": None if args.keypoints is None else os.path.abspath(args.keypoints),
             "keypoints_source": "posetrack.detect" if args.detect else rec.keypoint_layout,
             "rgb": None if args.rgb is None else os.path.abspath(args.rgb),
-            "intrinsics": os.path.abspath(args.intrinsics),
-            "depth_scale": args.depth_scale,
+            "intrinsics": None if args.intrinsics is None else os.path.abspath(args.intrinsics),
+            "depth_scale": depth_scale,
             "person_id": args.person_id,
             "person": args.person,
             "allow_missing": args.allow_missing,
@@ -208,6 +228,8 @@ def _track(args) -> int:
             "refine_shape": not args.no_refine_shape,
         },
         "notes": notes,
+        # Seconds of each frame (TUM: the colour image's time stamp); null without them.
+        "frame_timestamps": None if rec.timestamps is None else rec.timestamps.tolist(),
         "person": person,
         "sides_exchanged": undone,
         "shape_refinement": _shape_summary(tracker),
@@ -348,7 +370,7 @@ def _warmup(args) -> int:
     if (args.intrinsics is None) == (args.size is None):
         raise ValueError("warmup: give the depth camera as --intrinsics FILE or --size WxH")
     if args.intrinsics is not None:
-        intrinsics = io.read_intrinsics_json(args.intrinsics)
+        intrinsics = io.read_intrinsics(args.intrinsics)
     else:
         w, h = args.size
         intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
@@ -497,23 +519,34 @@ def build_parser() -> argparse.ArgumentParser:
         help="track a person in a recording (depth PNGs + OpenPose JSON) and write poses, "
         "BVH and an overlay video",
         description="Track one person through an RGB-D recording. Inputs: a folder of 16-bit "
-        "depth PNGs, a folder of OpenPose JSON (COCO-18 or BODY_25) and the depth camera's "
-        "intrinsics JSON. Writes poses.npz, keypoints3d/*.json (EasyMocap), motion.bvh, "
-        "overlay.mp4 (or .gif) and summary.json into --out, atomically.",
+        "depth PNGs (or a TUM RGB-D sequence folder, --tum), a folder of OpenPose JSON "
+        "(COCO-18 or BODY_25) and the depth camera's intrinsics (JSON or OpenCV YAML/XML). "
+        "Writes poses.npz, keypoints3d/*.json (EasyMocap), motion.bvh, overlay.mp4 (or .gif) "
+        "and summary.json into --out, atomically.",
         epilog="Exit codes: 0 done, 2 bad input or arguments (one 'error:' line, nothing "
         "written), 1 system error (disk full, permissions; nothing written), 130 interrupted "
         "(nothing written). Set POSETRACK_TRACEBACK=1 to see tracebacks instead of 'error:' "
         "lines.",
     )
-    t.add_argument("--depth", required=True, metavar="DIR", help="folder of 16-bit depth PNGs")
+    source = t.add_mutually_exclusive_group(required=True)
+    source.add_argument("--depth", metavar="DIR", help="folder of 16-bit depth PNGs")
+    source.add_argument(
+        "--tum", metavar="FOLDER",
+        help="a TUM RGB-D sequence (rgb.txt, depth.txt, rgb/, depth/) instead of --depth: one "
+        "frame per colour image (its rgb/ is the colour, as --rgb), depth paired by time "
+        "stamp, depth scale 5000, intrinsics from the folder name (freiburg1/2/3) unless "
+        "--intrinsics is given",
+    )  # fmt: skip
     t.add_argument(
         "--keypoints", metavar="DIR",
         help="folder of OpenPose <stem>_keypoints.json files (not needed with --detect)",
     )  # fmt: skip
     t.add_argument(
-        "--intrinsics", required=True, metavar="FILE",
-        help="depth-camera intrinsics JSON: Open3D, {fx, fy, cx, cy, width, height} or ROS "
-        "CameraInfo (K, width, height)",
+        "--intrinsics", metavar="FILE",
+        help="depth-camera intrinsics (required with --depth): JSON (Open3D, {fx, fy, cx, cy, "
+        "width, height} or ROS CameraInfo) or OpenCV YAML/XML (camera_matrix, image_width, "
+        "image_height; EasyMocap intri.yml: FILE#NAME chooses camera NAME). Without a size in "
+        "the file, the depth images give it",
     )  # fmt: skip
     t.add_argument(
         "--rgb", metavar="DIR|VIDEO",
@@ -526,8 +559,13 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     _add_method_options(t)
     t.add_argument(
-        "--depth-scale", type=float, default=1000.0, metavar="S",
-        help="depth units per metre (default: %(default)g = millimetres; 5000 for TUM RGB-D)",
+        "--depth-scale", type=float, metavar="S",
+        help="depth units per metre (default: 1000 = millimetres; with --tum 5000)",
+    )  # fmt: skip
+    t.add_argument(
+        "--tum-max-difference", type=float, metavar="SECONDS",
+        help="with --tum: a colour image and its depth image are less than this apart "
+        "(default: 0.02, as the benchmark's associate.py)",
     )  # fmt: skip
     t.add_argument(
         "--person-id", type=int, metavar="ID",
@@ -626,7 +664,10 @@ def build_parser() -> argparse.ArgumentParser:
         "options mean what they mean for `posetrack track`; the camera's focal length does "
         "not matter, its image size does.",
     )  # fmt: skip
-    w.add_argument("--intrinsics", metavar="FILE", help="the depth camera's intrinsics JSON")
+    w.add_argument(
+        "--intrinsics", metavar="FILE",
+        help="the depth camera's intrinsics file (as for track; it must give the image size)",
+    )  # fmt: skip
     w.add_argument("--size", type=_size_arg, metavar="WxH", help="or only its image size")
     _add_method_options(w)
     _add_mode_options(w)

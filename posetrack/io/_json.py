@@ -10,25 +10,33 @@ from typing import Any
 from ._errors import InputError, format_value
 
 
+def read_text(path: Path, what: str, kind: str) -> str:
+    """A text file's contents (UTF-8, a BOM allowed); a missing, unreadable, empty or
+    non-UTF-8 file is an :class:`InputError` saying it should hold ``what`` as ``kind``
+    ("intrinsics", "JSON")."""
+    try:
+        data = path.read_bytes()
+    except IsADirectoryError as e:
+        raise InputError(path, "file", str(path), f"is a folder, not a {what} {kind} file") from e
+    except OSError as e:
+        raise InputError(path, "file", str(path), f"cannot be read ({e.strerror})") from e
+    if not data.strip():
+        problem = f"is empty ({len(data)} bytes); expected {what} {kind}"
+        raise InputError(path, "file", len(data), problem)
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        problem = f"is not UTF-8 text, so not {what} {kind}"
+        raise InputError(path, "file", data[:16], problem) from e
+
+
 def load_json(path: Path, what: str) -> Any:
     """Parse a JSON file; every failure is an :class:`InputError` naming the file.
 
     Python's ``json`` accepts the non-standard literals ``NaN`` and ``Infinity``; callers
     reject them per field with :func:`number`, so the message can say where they are.
     """
-    try:
-        data = path.read_bytes()
-    except IsADirectoryError as e:
-        raise InputError(path, "file", str(path), f"is a folder, not a {what} JSON file") from e
-    except OSError as e:
-        raise InputError(path, "file", str(path), f"cannot be read ({e.strerror})") from e
-    if not data.strip():
-        problem = f"is empty ({len(data)} bytes); expected {what} JSON"
-        raise InputError(path, "file", len(data), problem)
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as e:
-        raise InputError(path, "file", data[:16], f"is not UTF-8 text, so not {what} JSON") from e
+    text = read_text(path, what, "JSON")
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:

@@ -16,9 +16,10 @@ import re
 from pathlib import Path
 
 from .._camera import Intrinsics
+from ._depth import probe_depth_png
 from ._errors import InputError
 from ._frames import list_frames
-from ._intrinsics import read_intrinsics_json
+from ._intrinsics import CAMERA_SEPARATOR, read_intrinsics
 
 REQUIRED = ("name", "depth", "keypoints", "intrinsics")
 OPTIONAL = ("rgb", "depth_scale")
@@ -35,6 +36,7 @@ class ManifestRow:
     depth: Path
     keypoints: Path
     intrinsics_path: Path
+    """The intrinsics file; ``FILE#NAME`` where the row chooses a camera (``intri.yml#01``)."""
     intrinsics: Intrinsics
     rgb: Path | None
     depth_scale: float
@@ -43,9 +45,10 @@ class ManifestRow:
 
 
 def read_manifest(path: str | os.PathLike[str]) -> list[ManifestRow]:
-    """Read and check a manifest: every row's folders and files exist, its intrinsics parse,
-    its depth folder holds depth images. The frames themselves are checked when the row is
-    loaded (:func:`posetrack.io.load_recording`).
+    """Read and check a manifest: every row's folders and files exist, its intrinsics parse
+    (``FILE#NAME`` chooses a camera; a file without an image size takes the first depth
+    image's), its depth folder holds depth images. The frames themselves are checked when the
+    row is loaded (:func:`posetrack.io.load_recording`).
 
     Raises:
         InputError: ``"<manifest>: row <line> (<name>): <column>: <problem>"`` for the first
@@ -124,7 +127,15 @@ def _row(manifest: Path, base: Path, line: int, cell: dict[str, str], seen: dict
 
     depth = resolve("depth", folder=True)
     keypoints = resolve("keypoints", folder=True)
+    camera = None  # intri.yml#01: camera 01 of a multi-camera file (read_intrinsics)
+    text = cell["intrinsics"]
+    if CAMERA_SEPARATOR in Path(text).name:
+        whole = Path(text).expanduser()
+        if not (whole if whole.is_absolute() else base / whole).exists():
+            cell["intrinsics"], _, camera = text.rpartition(CAMERA_SEPARATOR)
     intr_path = resolve("intrinsics", folder=False)
+    if camera is not None:
+        intr_path = Path(f"{intr_path}{CAMERA_SEPARATOR}{camera}")
     rgb = resolve("rgb", folder=None)  # a folder of images or a video file
     scale_text = cell.get("depth_scale", "")
     try:
@@ -134,15 +145,15 @@ def _row(manifest: Path, base: Path, line: int, cell: dict[str, str], seen: dict
     if not (math.isfinite(scale) and scale > 0):
         raise bad("depth_scale", scale_text, "must be a positive number (units per metre)")
     try:
-        intrinsics = read_intrinsics_json(intr_path)
-    except InputError as e:
-        raise bad("intrinsics", e.value, str(e)) from None
-    try:
-        frames = len(list_frames(depth, extensions=(".png",), what="depth"))
+        files = list_frames(depth, extensions=(".png",), what="depth")
+        h, w = probe_depth_png(next(iter(files.values())))
     except InputError as e:
         raise bad("depth", e.value, str(e)) from None
-    if frames == 0:
-        raise bad("depth", cell["depth"], f"{depth}: no depth PNGs in the folder")
+    frames = len(files)
+    try:  # a file without an image size (EasyMocap's intri.yml) takes the depth images'
+        intrinsics = read_intrinsics(intr_path, image_size=(w, h))
+    except InputError as e:
+        raise bad("intrinsics", e.value, str(e)) from None
     return ManifestRow(
         line=line, name=name, depth=depth, keypoints=keypoints, intrinsics_path=intr_path,
         intrinsics=intrinsics, rgb=rgb, depth_scale=scale, frames=frames,

@@ -20,16 +20,25 @@ from ._frames import (
     list_frames,
     pair_frames,
 )
-from ._intrinsics import read_intrinsics_with_layout
+from ._intrinsics import read_intrinsics_file
 from ._openpose import AMBIGUOUS_RATIO, read_openpose_json
 from ._rgb import VIDEO_EXTENSIONS, RgbFrames, RgbVideo
+from ._tum import (
+    TUM_DEPTH_SCALE,
+    TUM_MAX_DIFFERENCE,
+    is_tum_folder,
+    pair_tum_keypoints,
+    read_tum_sequence,
+    tum_intrinsics,
+)
 
 logger = logging.getLogger("posetrack.io")
 
 
 @dataclass(frozen=True, eq=False)
 class Recording:
-    """A validated recording: T frames paired by frame number.
+    """A validated recording: T frames paired by frame number (or, from a TUM RGB-D
+    sequence, by time stamp: :func:`load_tum`).
 
     A plain frozen dataclass rather than an ``eqx.Module``: it lives on the host, holds lazy
     file readers, and never enters a jitted function (its arrays do, one frame at a time).
@@ -37,7 +46,8 @@ class Recording:
     """
 
     frame_ids: np.ndarray
-    """``int64 (T,)`` frame numbers (from the file names), increasing."""
+    """``int64 (T,)`` frame numbers (from the file names), increasing. From a TUM sequence:
+    0, 1, 2, ... the colour images in time order (their time stamps: :attr:`timestamps`)."""
     depth: DepthSequence
     """Lazy ``float32 (H, W)`` metres per frame, 0 = no measurement (all 0 for an absent
     file); read on indexing, never cached."""
@@ -67,11 +77,15 @@ class Recording:
     keypoint_layout: str | None
     """``"COCO-18"`` or ``"BODY_25"`` as found in the files (None without keypoints)."""
     fps: float | None
-    """Frames per second if known (from a colour video), else None."""
+    """Frames per second if known (from a colour video, or a TUM sequence's time stamps),
+    else None."""
     notes: tuple[str, ...]
     """One-line remarks for the user (layouts detected, person choices, frames without
     observation, dropped keypoints, ignored distortion); the CLI prints each as
     ``note: ...`` on stderr before tracking."""
+    timestamps: np.ndarray | None = None
+    """``float64 (T,)`` seconds of each frame where the input has time stamps (a TUM
+    sequence: the colour image's, seconds since the Unix epoch), else None."""
 
     def __len__(self) -> int:
         return len(self.frame_ids)
@@ -131,7 +145,9 @@ def load_recording(
     Args:
         depth_dir: folder of 16-bit depth PNGs (``000012.png``, ``frame_12.png``, ...).
         keypoints_dir: folder of OpenPose ``<stem>_keypoints.json`` files, or None.
-        intrinsics_path: intrinsics JSON of the depth camera (Open3D, plain or ROS layout).
+        intrinsics_path: intrinsics file of the depth camera (:func:`read_intrinsics`: JSON
+            or OpenCV YAML/XML; ``intri.yml#NAME`` chooses a camera). A file without an image
+            size (EasyMocap's ``intri.yml``) takes the first depth image's.
         rgb: folder of colour images, a video file, or None. Registered to depth.
         depth_scale: depth units per metre (1000 = millimetres; 5000 for TUM RGB-D).
         person_id: OpenPose ``person_id`` to follow; None = the best-scoring person per frame.
@@ -152,20 +168,18 @@ def load_recording(
     Raises:
         InputError: any bad file (see the readers), no frames, unpaired frames (without
             ``allow_missing``), duplicate frame numbers, a depth image whose size differs from
-            the intrinsics, keypoint files mixing layouts, a ``person_id`` found in no file,
-            colour of another size than depth, a video with another frame count, keypoints
-            that look detected on a smaller image (``keypoints_scale=None``).
+            the intrinsics (or from the first depth image's, where the intrinsics file gives
+            no size), a TUM RGB-D folder (use :func:`load_tum`), keypoint files mixing
+            layouts, a ``person_id`` found in no file, colour of another size than depth, a
+            video with another frame count, keypoints that look detected on a smaller image
+            (``keypoints_scale=None``).
     """
     scale = check_depth_scale(depth_scale)
-    kp_scale = 1.0 if keypoints_scale is None else float(keypoints_scale)
-    if not (np.isfinite(kp_scale) and kp_scale > 0):
-        raise ValueError(f"keypoints_scale must be positive, got {keypoints_scale!r}")
-    intrinsics_path = Path(intrinsics_path)
-    intrinsics, intrinsics_layout, notes = read_intrinsics_with_layout(intrinsics_path)
-    width, height = intrinsics.width, intrinsics.height
-    notes.insert(0, f"intrinsics: {intrinsics_layout} layout, {width}x{height}")
-
+    kp_scale = _keypoints_scale(keypoints_scale)
+    _refuse_tum_folder(Path(depth_dir))
     depth_files = list_frames(depth_dir, extensions=(".png",), what="depth")
+    notes: list[str] = []
+    intrinsics, size = _depth_intrinsics(intrinsics_path, next(iter(depth_files.values())), notes)
     sources = {"depth": (Path(depth_dir), depth_files)}
     if keypoints_dir is not None:
         sources["keypoints"] = (
@@ -187,7 +201,193 @@ def load_recording(
             sources["rgb"] = (rgb, list_frames(rgb, extensions=IMAGE_EXTENSIONS, what="RGB"))
     frame_ids, paired, pair_notes = pair_frames(sources, allow_missing=allow_missing)
     notes += pair_notes
+    return _assemble(
+        frame_ids, paired, video=video, intrinsics=intrinsics, size=size, scale=scale,
+        keypoints_dir=None if keypoints_dir is None else Path(keypoints_dir),
+        person_id=person_id, keypoint_margin=keypoint_margin, out_of_image=out_of_image,
+        keypoints_scale=keypoints_scale, kp_scale=kp_scale, notes=notes,
+    )  # fmt: skip
+
+
+def load_tum(
+    folder: str | os.PathLike[str],
+    *,
+    keypoints_dir: str | os.PathLike[str] | None = None,
+    intrinsics_path: str | os.PathLike[str] | None = None,
+    depth_scale: float = TUM_DEPTH_SCALE,
+    max_difference: float = TUM_MAX_DIFFERENCE,
+    person_id: int | None = None,
+    allow_missing: bool = False,
+    keypoint_margin: float = 16.0,
+    out_of_image: Literal["error", "drop"] = "error",
+    keypoints_scale: float | None = None,
+) -> Recording:
+    """Load a TUM RGB-D benchmark sequence: one frame per colour image of ``rgb.txt``.
+
+    Each colour image is paired with the depth image of ``depth.txt`` closest in time, one to
+    one, less than ``max_difference`` seconds apart (the rule of the benchmark's
+    ``associate.py``). A colour image without such a depth image is a frame without
+    observation (noted, not an error: the two streams are not synchronised). The recording's
+    colour (:attr:`Recording.rgb`) is the sequence's ``rgb/``, registered to depth.
+
+    Frame ids are 0, 1, 2, ... the colour images in time order; :attr:`Recording.timestamps`
+    holds their time stamps and :attr:`Recording.fps` comes from their median spacing.
+
+    Args:
+        folder: the sequence folder (``rgb.txt``, ``depth.txt``, ``rgb/``, ``depth/``).
+        keypoints_dir: folder of OpenPose JSON detected on the colour images, named after them
+            (``<rgb stem>_keypoints.json``, e.g. ``1305031102.175304_keypoints.json``), or None.
+        intrinsics_path: intrinsics file as for :func:`load_recording`; None: the freiburg1/2/3
+            camera named in the folder's name (``rgbd_dataset_freiburg1_xyz``), with a note.
+        depth_scale: depth units per metre (the benchmark's 5000).
+        max_difference: seconds a colour image and its depth image may be apart (less than).
+        person_id, allow_missing, keypoint_margin, out_of_image, keypoints_scale: as for
+            :func:`load_recording`; ``allow_missing`` covers colour images without a keypoint
+            file and keypoint files matching no colour image.
+
+    Returns:
+        A :class:`Recording`.
+
+    Raises:
+        InputError: a missing folder or list, a bad list line (naming the list and the line),
+            no intrinsics and a folder name that names no freiburg camera, unpaired keypoint
+            files (without ``allow_missing``), and the errors of :func:`load_recording`.
+    """
+    scale = check_depth_scale(depth_scale)
+    kp_scale = _keypoints_scale(keypoints_scale)
+    folder = Path(folder)
+    seq = read_tum_sequence(folder, max_difference=max_difference)
+    notes: list[str] = []
+    first_depth = next((p for p in seq.depth if p is not None), None)
+    if first_depth is None:
+        raise InputError(
+            folder, "depth.txt", None,
+            f"no depth image lies within {max_difference:g} s of any colour image of rgb.txt "
+            f"({len(seq.rgb)} images from t = {seq.timestamps[0]:.6f} s); check the lists",
+        )  # fmt: skip
+    if intrinsics_path is not None:
+        intrinsics, size = _depth_intrinsics(intrinsics_path, first_depth, notes)
+    else:
+        known = tum_intrinsics(folder)
+        if known is None:
+            raise InputError(
+                folder, "intrinsics", folder.resolve().name,
+                f"no intrinsics given and the folder name {folder.resolve().name!r} names no "
+                "TUM camera (freiburg1, freiburg2 or freiburg3); give the intrinsics file "
+                "(CLI: --intrinsics FILE)",
+            )  # fmt: skip
+        intrinsics, note = known
+        notes.append(note)
+        size = (
+            f"the TUM camera of {folder.resolve().name}", "is",
+            "the benchmark's images are 640x480; give the intrinsics of these images",
+        )  # fmt: skip
+    n = len(seq.rgb)
+    frame_ids = np.arange(n, dtype=np.int64)
+    paired: dict[str, list[Path | None]] = {"depth": list(seq.depth), "rgb": list(seq.rgb)}
+    if keypoints_dir is not None:
+        paired["keypoints"] = pair_tum_keypoints(
+            keypoints_dir, seq.rgb, rgb_list=folder / "rgb.txt", allow_missing=allow_missing,
+            notes=notes,
+        )  # fmt: skip
+    no_depth = [t for t, p in enumerate(seq.depth) if p is None]
+    spacing = float(np.median(np.diff(seq.timestamps))) if n > 1 else 0.0
+    fps = 1.0 / spacing if spacing > 0 else None
+    notes.append(
+        f"TUM: {n} colour images of {folder / 'rgb.txt'}"
+        + (f" at {fps:.2f} fps (median spacing of their time stamps)" if fps else "")
+        + f", each paired with the closest depth image less than {max_difference:g} s away"
+        + (
+            f"; none close enough for {len(no_depth)} ({format_ranges(no_depth)}): frames "
+            "without observation"
+            if no_depth
+            else ""
+        )
+        + (f"; {seq.unused_depth} depth image(s) unused" if seq.unused_depth else "")
+    )
+    return _assemble(
+        frame_ids, paired, video=None, intrinsics=intrinsics, size=size, scale=scale,
+        keypoints_dir=None if keypoints_dir is None else Path(keypoints_dir),
+        person_id=person_id, keypoint_margin=keypoint_margin, out_of_image=out_of_image,
+        keypoints_scale=keypoints_scale, kp_scale=kp_scale, notes=notes,
+        timestamps=seq.timestamps, fps=fps,
+    )  # fmt: skip
+
+
+def _keypoints_scale(keypoints_scale: float | None) -> float:
+    kp_scale = 1.0 if keypoints_scale is None else float(keypoints_scale)
+    if not (np.isfinite(kp_scale) and kp_scale > 0):
+        raise ValueError(f"keypoints_scale must be positive, got {keypoints_scale!r}")
+    return kp_scale
+
+
+def _refuse_tum_folder(depth_dir: Path) -> None:
+    """A TUM sequence (or its ``depth/``) given as a depth folder: its files are named by time
+    stamp (``1305031102.160407.png``), whose last run of digits is no frame number."""
+    for folder in (depth_dir, depth_dir.parent) if depth_dir.name == "depth" else (depth_dir,):
+        if is_tum_folder(folder):
+            what = "is" if folder == depth_dir else "is the depth/ folder of"
+            raise InputError(
+                depth_dir, "folder", str(depth_dir),
+                f"{what} a TUM RGB-D sequence ({folder} holds rgb.txt and depth.txt; its "
+                f"images are named by time stamp): load it with load_tum({str(folder)!r}) "
+                f"(CLI: --tum {folder} instead of --depth)",
+            )  # fmt: skip
+
+
+def _depth_intrinsics(
+    intrinsics_path: str | os.PathLike[str], first_depth: Path, notes: list[str]
+) -> tuple[Intrinsics, tuple[str, str, str]]:
+    """Read the intrinsics file; one without an image size takes the first depth image's.
+
+    Returns:
+        ``(intrinsics, (what gives the size, a verb, why depth must match))`` for size errors;
+        the layout note goes first in ``notes``, the file's own notes after it.
+    """
+    h, w = probe_depth_png(first_depth)
+    read = read_intrinsics_file(intrinsics_path, image_size=(w, h))
+    k = read.intrinsics
+    if read.size_in_file:
+        notes.insert(0, f"intrinsics: {read.layout} layout, {k.width}x{k.height}")
+        size = (str(intrinsics_path), "says", "intrinsics must belong to the depth images")
+    else:
+        notes.insert(
+            0,
+            f"intrinsics: {read.layout} layout, {k.width}x{k.height} from the depth images "
+            f"({first_depth.name}; {intrinsics_path} gives no image size)",
+        )
+        size = (
+            f"the first depth image {first_depth}", "is",
+            f"every depth image must have the same size ({intrinsics_path} gives none)",
+        )  # fmt: skip
+    notes[1:1] = read.notes
+    return k, size
+
+
+def _assemble(
+    frame_ids: np.ndarray,
+    paired: dict[str, list[Path | None]],
+    *,
+    video: Path | None,
+    intrinsics: Intrinsics,
+    size: tuple[str, str, str],
+    scale: float,
+    keypoints_dir: Path | None,
+    person_id: int | None,
+    keypoint_margin: float,
+    out_of_image: Literal["error", "drop"],
+    keypoints_scale: float | None,
+    kp_scale: float,
+    notes: list[str],
+    timestamps: np.ndarray | None = None,
+    fps: float | None = None,
+) -> Recording:
+    """Check every depth image, read every keypoint file, open the colour: the recording of
+    paired files (``paired``: ``{"depth"|"keypoints"|"rgb": [path or None] * T}``).
+    ``size``: what gave the image size, a verb and why depth must match it (for errors)."""
     n = len(frame_ids)
+    width, height = intrinsics.width, intrinsics.height
+    size_source, size_verb, size_why = size
 
     for path in paired["depth"]:
         if path is None:
@@ -198,8 +398,8 @@ def load_recording(
                 path,
                 "size",
                 (w, h),
-                f"depth image is {w}x{h} but {intrinsics_path} says {width}x{height} "
-                "(width x height); intrinsics must belong to the depth images",
+                f"depth image is {w}x{h} but {size_source} {size_verb} {width}x{height} "
+                f"(width x height); {size_why}",
             )
     has_depth = np.array([p is not None for p in paired["depth"]])
     depth = DepthSequence(
@@ -207,7 +407,7 @@ def load_recording(
         frame_ids=frame_ids,
         shape=(height, width),
         scale=scale,
-        size_source=f"{intrinsics_path}",
+        size_source=size_source,
     )
 
     keypoints2d = np.zeros((n, 18, 2), np.float32)
@@ -260,7 +460,7 @@ def load_recording(
             for note in frame.notes:
                 logger.debug(note)
         if keypoints_scale is None:
-            _check_keypoint_resolution(sources["keypoints"][0], everyone, width, height)
+            _check_keypoint_resolution(keypoints_dir, everyone, width, height)
         elif kp_scale != 1.0:
             notes.append(
                 f"keypoints: pixel coordinates multiplied by {kp_scale:g} (pixel centre to "
@@ -268,7 +468,7 @@ def load_recording(
             )
         if person_id is not None and not (person_index >= 0).any():
             raise InputError(
-                sources["keypoints"][0],
+                keypoints_dir,
                 "person_id",
                 person_id,
                 "no keypoint file lists a person with this person_id",
@@ -315,7 +515,6 @@ def load_recording(
         people[t, : len(e)] = e
 
     rgb_seq: RgbFrames | RgbVideo | None = None
-    fps = None
     if video is not None:
         rgb_seq = RgbVideo(video, frame_ids=frame_ids, shape=(height, width))
         if rgb_seq.frame_count > 0 and rgb_seq.frame_count != n:
@@ -330,7 +529,7 @@ def load_recording(
             )
         rgb_seq[0]  # decode one frame: checks the codec and the size now, not mid-run
         fps = rgb_seq.fps
-    elif rgb is not None:
+    elif "rgb" in paired:
         rgb_seq = RgbFrames(paired["rgb"], frame_ids=frame_ids, shape=(height, width))
         first = next(t for t, p in enumerate(paired["rgb"]) if p is not None)
         rgb_seq[first]  # decode one image: checks it and its size now, not mid-run
@@ -352,4 +551,5 @@ def load_recording(
         keypoint_layout=layout,
         fps=fps,
         notes=tuple(notes),
+        timestamps=None if timestamps is None else _readonly(np.asarray(timestamps, np.float64)),
     )
