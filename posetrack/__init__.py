@@ -86,6 +86,7 @@ from ._step import tracker_step as tracker_step
 from ._tracker import LOST as LOST
 from ._tracker import MODES as MODES
 from ._tracker import NO_OBSERVATION as NO_OBSERVATION
+from ._tracker import JOINT_STATES as JOINT_STATES
 from ._tracker import STATUS_NAMES as STATUS_NAMES
 from ._tracker import TRACKED as TRACKED
 from ._tracker import Tracker as Tracker
@@ -119,7 +120,8 @@ __all__ = [
     # rendering and scoring (Eq. (3))
     "Capsules", "delta", "delta_batch", "render_and_score", "render_depth", "render_depth_batch",
     # the tracker
-    "BEYOND_THE_PAPER", "FrameEstimate", "LOST", "METHODS", "NO_OBSERVATION", "STATUS_NAMES",
+    "BEYOND_THE_PAPER", "FrameEstimate", "JOINT_STATES", "LOST", "METHODS", "NO_OBSERVATION",
+    "STATUS_NAMES",
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
     # many recordings at once

@@ -37,6 +37,7 @@ from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
 from ._programs import Program, prepare_in_background, program
+from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import SideLabeller, SideSettings
 from ._smooth import (
@@ -60,6 +61,8 @@ _MIN_REFINE_FRAMES = 3
 #: Frame status codes (also the strings written to files).
 TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
 STATUS_NAMES = ("tracked", "lost", "no_observation")
+#: Names of :attr:`TrackResult.joint_state`'s values (also written to ``poses.npz``).
+JOINT_STATES = JOINT_STATE_NAMES
 
 #: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
 #: causal motion model with a fixed lag, or each frame on its own (the paper).
@@ -155,6 +158,17 @@ class TrackResult:
     @property
     def status_names(self) -> list[str]:
         return [STATUS_NAMES[s] for s in self.status]
+
+    @property
+    def joint_state(self) -> np.ndarray:
+        """(T, 18) int8 state of each joint (:data:`JOINT_STATES`), in the spirit of Azure
+        Kinect's confidence levels: 0 not estimated (NaN keypoint), 1 predicted (estimated but
+        not detected in 2D this frame: placed by the rest of the body, the previous frames and,
+        offline, the motion model), 2 observed (detected in 2D this frame, with or without
+        depth)."""
+        estimated = np.isfinite(self.keypoints3d).all(axis=-1)
+        seen = np.asarray(self.detected, bool) & (self.status != NO_OBSERVATION)[:, None]
+        return np.where(estimated, np.where(seen, 2, 1), 0).astype(np.int8)
 
 
 def keypoint_confidence(est: FrameEstimate) -> np.ndarray:

@@ -121,6 +121,22 @@ def test_poses_npz_fields(poses):
     assert ((poses["confidence"] >= 0) & (poses["confidence"] <= 1)).all()
 
 
+def test_joint_state_says_not_estimated_predicted_or_observed(cli, poses, lib_result):
+    """``joint_state``: 0 exactly where a joint is NaN, 2 where its keypoint was detected in
+    that frame, 1 where the tracker placed it without a detection (the recording hides
+    keypoints, so all three occur or at least 1 and 2)."""
+    state = poses["joint_state"]
+    assert state.dtype == np.int8 and state.shape == (N_FRAMES, 18)
+    assert list(poses["joint_state_names"]) == ["not_estimated", "predicted", "observed"]
+    estimated = np.isfinite(poses["keypoints3d"]).all(axis=-1)
+    np.testing.assert_array_equal(state == 0, ~estimated)
+    detected = lib_result.detected & (lib_result.status != posetrack.NO_OBSERVATION)[:, None]
+    np.testing.assert_array_equal(state[estimated] == 2, detected[estimated])
+    assert (state == 1).any() and (state == 2).any()
+    counts = json.loads((cli.out / "summary.json").read_text())["joint_state_counts"]
+    assert counts == {n: int(np.sum(state == k)) for k, n in enumerate(posetrack.JOINT_STATES)}
+
+
 def test_easymocap_layout(cli, poses):
     files = sorted(p.name for p in (cli.out / "keypoints3d").glob("*.json"))
     assert files == [f"{t:06d}.json" for t in range(N_FRAMES)]
@@ -365,6 +381,19 @@ def test_detect_feeds_the_detector_output_to_the_tracker(seq, rec, cli, poses, t
     detected = io.read_poses_npz(tmp_path / "out" / "poses.npz")
     # Same 2D keypoints as the OpenPose files hold: the same track.
     np.testing.assert_allclose(detected["keypoints3d"], poses["keypoints3d"], atol=1e-5)
+    # The detector's keypoints are saved as OpenPose JSON: a repeat needs no detector.
+    saved = sorted((tmp_path / "out" / "keypoints2d").iterdir())
+    assert [p.name for p in saved] == [f"{i:06d}_keypoints.json" for i in range(N_FRAMES)]
+    frame5 = io.read_openpose_json(saved[5], out_of_image="drop")
+    seen = seq.confidence[5] > 0
+    np.testing.assert_allclose(frame5.confidence, seq.confidence[5], atol=1e-6)
+    np.testing.assert_allclose(frame5.keypoints2d[seen], seq.keypoints2d[5][seen], atol=1e-3)
+    again = track_args(rec, tmp_path / "again", "--no-video")
+    again[again.index("--keypoints") + 1] = str(tmp_path / "out" / "keypoints2d")
+    code, _, stderr = run_cli(*again)
+    assert code == 0, stderr
+    repeated = io.read_poses_npz(tmp_path / "again" / "poses.npz")
+    np.testing.assert_array_equal(repeated["keypoints3d"], detected["keypoints3d"])
 
 
 # -- bad input --------------------------------------------------------------------------------

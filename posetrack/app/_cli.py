@@ -180,6 +180,13 @@ def _track(args) -> int:
     # Frames without observation (no depth file, nobody detected) carry no keypoints at all.
     conf = np.where(rec.observed.reshape((-1,) + (1,) * (conf.ndim - 1)), conf, np.float32(0))
     t_detected = time.perf_counter()
+    detected = None  # the detector's keypoints, saved so a run can be repeated without it
+    if detect_keypoints is not None:
+        if args.tum is not None:  # OpenPose names files after the image: --tum pairs by them
+            stems = [os.path.splitext(os.path.basename(p))[0] for p in rec.rgb.paths]
+        else:  # by frame number, as the depth folder pairs
+            stems = [f"{int(i):06d}" for i in rec.frame_ids]
+        detected = (kp2d, conf, stems)
 
     w, h = rec.intrinsics.width, rec.intrinsics.height
     print(
@@ -242,7 +249,7 @@ def _track(args) -> int:
     saved = save_results(
         out, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids, fps=fps,
         rgb=rec.rgb, depth=rec.depth, video=not args.no_video, detections=(kp2d, conf),
-        info=info, progress=progress, frame=args.frame,
+        keypoints2d=detected, info=info, progress=progress, frame=args.frame,
     )  # fmt: skip
 
     counts = status_counts(result.status)

@@ -30,7 +30,7 @@ from .. import _body as body
 from .._camera import Intrinsics
 from .._depthobs import NO_FLOOR
 from .._so3 import quat_normalize
-from .._tracker import STATUS_NAMES, TrackResult
+from .._tracker import JOINT_STATES, STATUS_NAMES, TrackResult
 from .._world import FRAMES, WorldFrame, camera_frame, floor_frame, transform_params
 from ..io import (
     COCO18_NAMES,
@@ -38,6 +38,7 @@ from ..io import (
     atomic_dir,
     write_bvh,
     write_easymocap,
+    write_openpose_json,
     write_poses_npz,
     write_trc,
 )
@@ -197,6 +198,8 @@ class SavedResults:
     """``markers.trc``."""
     overlay: Path | None
     """``overlay.mp4`` or ``overlay.gif``; None without video."""
+    keypoints2d: Path | None
+    """The OpenPose ``keypoints2d`` folder of the detector's keypoints; None when not given."""
     summary: dict[str, Any]
     """The contents of ``summary.json``."""
 
@@ -257,6 +260,7 @@ def save_results(
     depth_scale: float = 1000.0,
     video: bool = True,
     detections: tuple[np.ndarray, np.ndarray] | None = None,
+    keypoints2d: tuple[np.ndarray, np.ndarray, Sequence[str]] | None = None,
     info: dict[str, Any] | None = None,
     progress: bool = False,
     frame: str = "camera",
@@ -283,6 +287,9 @@ def save_results(
     * ``markers.trc`` (:func:`posetrack.io.write_trc`): the 18 COCO-18 keypoints as OpenSim
       markers, metres, in ``frame``; empty where not estimated.
     * ``overlay.mp4`` or ``overlay.gif`` (``video=True``): :func:`posetrack._overlay.write_overlay`.
+    * ``keypoints2d/<stem>_keypoints.json`` (with ``keypoints2d``): the 2D keypoints the
+      tracker was given, as OpenPose JSON (:func:`posetrack.io.write_openpose_json`; nobody
+      where every confidence is 0), so a run can be repeated from them without the detector.
     * ``summary.json``: frames, status counts, mean Delta, method and configuration, body shape,
       fps, timing, the files, plus ``info``.
 
@@ -300,6 +307,9 @@ def save_results(
         video: write the overlay (needs ``rgb`` or ``depth``).
         detections: optional ``((T, 18, 2), (T, 18))`` 2D keypoints and confidences given to
             the tracker, drawn as dots on the overlay.
+        keypoints2d: optional ``((T, 18, 2), (T, 18), T stems)``: 2D keypoints to save as
+            OpenPose JSON, one ``<stem>_keypoints.json`` per frame (the command line: the colour
+            images' stems, or the frame ids as ``%06d`` for a video).
         info: extra JSON-able entries for ``summary.json`` (inputs, notes, timing, ...).
         progress: progress bar for the overlay on stderr.
         frame: ``"camera"`` or ``"floor"`` (:func:`output_frame`): the frame of the poses in
@@ -324,6 +334,15 @@ def save_results(
         raise ValueError(f"save_results: fps must be positive, got {fps!r}")
     if video and rgb is None and depth is None:
         raise ValueError("save_results: video=True needs rgb or depth frames to draw on")
+    if keypoints2d is not None:
+        kp2, conf2, stems = keypoints2d
+        if np.shape(kp2) != (T, 18, 2) or np.shape(conf2) != (T, 18) or len(stems) != T:
+            raise ValueError(
+                f"save_results: keypoints2d must be (({T}, 18, 2), ({T}, 18), {T} stems), got "
+                f"({np.shape(kp2)}, {np.shape(conf2)}, {len(stems)} stems)"
+            )
+        if len(set(stems)) != T or any(not s or "/" in s or os.sep in s for s in stems):
+            raise ValueError("save_results: keypoints2d stems must be unique file-name stems")
     for name, frames in (("rgb", rgb), ("depth", depth)):
         if frames is not None and len(frames) != T:
             raise ValueError(f"save_results: {name} has {len(frames)} frames, result has {T}")
@@ -339,6 +358,9 @@ def save_results(
         "frames": T,
         "frame_ids": {"first": int(ids[0]), "last": int(ids[-1])} if T else None,
         "status_counts": status_counts(result.status),
+        "joint_state_counts": {
+            name: int(np.sum(result.joint_state == k)) for k, name in enumerate(JOINT_STATES)
+        },
         "mean_delta_tracked": float(np.mean(result.delta[tracked])) if tracked.any() else None,
         "method": result.config.method,
         "hypotheses": result.config.n,
@@ -361,7 +383,7 @@ def save_results(
         write_poses_npz(
             tmp / "poses.npz", keypoints3d=kp3d, confidence=result.confidence, params=params,
             delta=result.delta, status=result.status, fps=fps, frame_ids=ids, frame=world.name,
-            world_from_camera=world.matrix,
+            world_from_camera=world.matrix, joint_state=result.joint_state,
         )  # fmt: skip
         write_easymocap(tmp, kp3d, result.confidence, ids)
         write_bvh(tmp / "motion.bvh", **motion._asdict(), fps=rate, camera_to_y_up=True)
@@ -373,12 +395,21 @@ def save_results(
                 delta=result.delta, frame_ids=ids, intrinsics=intrinsics, fps=rate, rgb=rgb,
                 depth=depth, depth_scale=depth_scale, detections=detections, progress=progress,
             )  # fmt: skip
+        if keypoints2d is not None:
+            (tmp / "keypoints2d").mkdir()
+            for k, c, stem in zip(*keypoints2d):
+                seen = np.asarray(c) > 0
+                write_openpose_json(
+                    tmp / "keypoints2d" / f"{stem}_keypoints.json",
+                    *((k, c) if seen.any() else (np.zeros((0, 18, 2)), np.zeros((0, 18)))),
+                )  # fmt: skip
         files = {
             "poses": "poses.npz",
             "keypoints3d": "keypoints3d/ (EasyMocap, BODY_25 order)",
             "bvh": "motion.bvh (y-up, centimetres)",
             "trc": f"markers.trc (OpenSim markers, metres, {world.name} frame)",
             "overlay": overlay.name if overlay is not None else None,
+            "keypoints2d": None if keypoints2d is None else "keypoints2d/ (OpenPose JSON, 2D)",
             "summary": "summary.json",
         }
         summary["files"] = files
@@ -400,5 +431,6 @@ def save_results(
         bvh=out / "motion.bvh",
         trc=out / "markers.trc",
         overlay=None if overlay is None else out / overlay.name,
+        keypoints2d=None if keypoints2d is None else out / "keypoints2d",
         summary=summary,
     )

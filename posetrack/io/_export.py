@@ -26,6 +26,8 @@ STATUSES = ("tracked", "lost", "no_observation")
 
 POSES_FORMAT = "posetrack-poses"
 POSES_VERSION = 1
+#: Values of ``joint_state`` in ``poses.npz`` (``TrackResult.joint_state``), by code 0, 1, 2.
+JOINT_STATE_NAMES = ("not_estimated", "predicted", "observed")
 
 
 def _first_bad(mask: np.ndarray) -> tuple[int, ...]:
@@ -109,6 +111,7 @@ def write_poses_npz(
     frame_ids: np.ndarray,
     frame: str = "camera",
     world_from_camera: np.ndarray | None = None,
+    joint_state: np.ndarray | None = None,
 ) -> None:
     """Write the tracked sequence to an uncompressed ``.npz``, atomically.
 
@@ -133,6 +136,9 @@ def write_poses_npz(
                                             NaN where not computed
     ``status``              <U14 (T,)       ``"tracked"``, ``"lost"`` or ``"no_observation"``
     ``joint_names``         <U9 (18,)       COCO-18 names
+    ``joint_state``         int8 (T,18)     0 not estimated, 1 predicted (not detected this
+                                            frame), 2 observed; ABSENT when not given
+    ``joint_state_names``   <U13 (3,)       the names of those values; with ``joint_state``
     ``fps``                 float64 ()      frames per second; ABSENT when unknown
     ======================  ==============  ==================================================
 
@@ -178,6 +184,22 @@ def write_poses_npz(
         if not np.isfinite(fps) or fps <= 0:
             raise ValueError(f"{what}: fps must be positive, got {fps}")
         arrays["fps"] = np.asarray(fps, dtype=np.float64)
+    if joint_state is not None:
+        state = np.asarray(joint_state)
+        if state.shape != kp.shape[:2] or not np.isin(state, (0, 1, 2)).all():
+            raise ValueError(
+                f"{what}: joint_state must be ({n}, 18) of 0, 1, 2, got {state.shape} with "
+                f"values {np.unique(state).tolist()[:5]}"
+            )
+        estimated = np.isfinite(kp).all(axis=-1)
+        if np.any((state == 0) != ~estimated):
+            t, j = _first_bad((state == 0) != ~estimated)
+            raise ValueError(
+                f"{what}: joint_state[{t}, {j}] = {int(state[t, j])} but the joint is "
+                f"{'' if estimated[t, j] else 'not '}estimated; 0 means exactly not estimated"
+            )
+        arrays["joint_state"] = state.astype(np.int8)
+        arrays["joint_state_names"] = np.asarray(JOINT_STATE_NAMES)
     with atomic_open(path, "wb") as f:
         np.savez(f, **arrays)
 
