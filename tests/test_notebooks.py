@@ -15,7 +15,6 @@ one. Nothing is written into the repository.
 from __future__ import annotations
 
 import json
-import os
 import re
 import sys
 from pathlib import Path
@@ -59,9 +58,10 @@ def kernel(tmp_path_factory):
     pytest.importorskip("nbclient", reason="notebook tests need nbclient (the test extra)")
     pytest.importorskip("ipykernel", reason="notebook tests need ipykernel (the test extra)")
     root = tmp_path_factory.mktemp("jupyter")
-    cache = os.environ.get("POSETRACK_CACHE_DIR", "off")
-    if cache.lower() in ("off", "none", "0", ""):
-        cache = str(root / "posetrack-cache")
+    from posetrack import _programs
+
+    store = _programs.cache_dir()  # the session's (conftest), None when off
+    cache = str(root / "posetrack-cache" if store is None else store.parent)
     spec_dir = root / "data" / "kernels" / KERNEL_NAME
     spec_dir.mkdir(parents=True)
     spec = {

@@ -24,6 +24,7 @@ import numpy as np
 from .._camera import Intrinsics
 from ._errors import InputError, format_value
 from ._frames import KEYPOINTS_SUFFIX, format_ranges
+from ._json import read_text
 
 #: Depth units per metre of the benchmark's depth PNGs.
 TUM_DEPTH_SCALE = 5000.0
@@ -68,16 +69,9 @@ def read_tum_list(path: str | os.PathLike[str]) -> tuple[np.ndarray, list[Path]]
             field is ``line <n>``); a time stamp listed twice; no entry.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(path, "file", str(path), "does not exist") from None
-    except IsADirectoryError:
-        raise InputError(path, "file", str(path), "is a folder, not a TUM list") from None
-    except OSError as e:
-        raise InputError(path, "file", str(path), f"cannot be read ({e.strerror})") from e
-    except UnicodeDecodeError as e:
-        raise InputError(path, "file", None, f"is not UTF-8 text ({e.reason})") from None
+    if not path.exists():
+        raise InputError(path, "file", str(path), "does not exist")
+    text = read_text(path, "TUM", "image list")
     stamps: list[float] = []
     files: list[Path] = []
     lines: dict[float, int] = {}
