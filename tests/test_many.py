@@ -220,3 +220,18 @@ def test_sigkill_loses_only_the_batch_in_flight(folders):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["counts"] == {"done": 6, "failed": 0, "pending": 0}
     assert not list(out.glob(".*.tmp"))  # the killed run's unfinished folders are gone
+
+
+def test_summary_rewrite_removes_a_killed_writers_temporary_file(tmp_path):
+    # SIGKILL while summary.json was being replaced leaves its hidden temporary file; the next
+    # writer holds the lock every writer takes, so it knows the file is orphaned.
+    from posetrack.app._many import _record
+
+    orphan = tmp_path / ".summary.json.ab12cd34.tmp"
+    orphan.write_text('{"half": ')
+    other = tmp_path / ".rec0.ab12cd34.tmp"  # a recording's folder in the making: not ours
+    other.mkdir()
+    data = _record(tmp_path, tmp_path / "m.csv", ["a", "b"], {"a": {"status": "done"}})
+    assert data["counts"] == {"done": 1, "failed": 0, "pending": 1}
+    assert not orphan.exists() and other.is_dir()
+    assert json.loads((tmp_path / "summary.json").read_text()) == data

@@ -65,6 +65,11 @@ def _record(out: Path, manifest: Path, names: list[str], updates: dict[str, dict
     from ..io import atomic_write_text
 
     with _locked(out):
+        # Every writer of summary.json holds the lock, so a temporary file of it found now was
+        # left by a writer that died mid-write (SIGKILL): safe to delete.
+        for stale in out.glob(f".{SUMMARY}.*.tmp"):
+            with contextlib.suppress(OSError):
+                stale.unlink()
         try:
             data = json.loads((out / SUMMARY).read_text(encoding="utf-8"))
             known = data.get("recordings", {})
