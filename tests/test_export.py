@@ -6,7 +6,6 @@ import json
 
 import cv2
 import imageio.v3 as iio
-import jax
 import numpy as np
 import pytest
 
@@ -14,10 +13,10 @@ import posetrack
 from posetrack import _body as body
 from posetrack import io
 from posetrack.app._export import (
-    BVH_KEYPOINTS,
     DEFAULT_FPS,
     bvh_from_params,
     bvh_from_result,
+    output_frame,
     save_results,
 )
 from posetrack.app._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, video_codec, write_video
@@ -26,8 +25,6 @@ from posetrack.app._viz import GREEN, RED
 N_FRAMES = 16
 # Same sequence size and configuration as test_cli_track.py: one JAX compilation per session.
 CONFIG = posetrack.TrackerConfig.recommended("mht_h", num_hypotheses=2)
-ELBOW_KNEE_END = {"right_elbow": 4, "left_elbow": 7, "right_knee": 10, "left_knee": 13}
-C = np.array([1.0, -1.0, -1.0])  # camera frame <-> BVH y-up world (a diagonal matrix)
 
 
 @pytest.fixture(scope="module")
@@ -59,74 +56,40 @@ def files_of(folder):
 # -- BVH --------------------------------------------------------------------------------------
 
 
-def bvh_keypoints(path) -> np.ndarray:
-    """(T, 18, 3) camera-frame metres of the 13 body keypoints a BVH carries (others NaN)."""
-    bvh = io.read_bvh(path)
-    names, parents = list(bvh.names), list(bvh.parents)
-    offsets, channels = list(bvh.offsets), list(bvh.channels)
-    for j, offset in sorted(bvh.end_sites.items()):  # End Sites as channel-less joints
-        names.append(f"{bvh.names[j]}_end")
-        parents.append(j)
-        offsets.append(offset)
-        channels.append(())
-    pos = io.bvh_forward_kinematics(np.asarray(parents), np.asarray(offsets), channels, bvh.motion)
-    pos = pos / 100.0 * C
-    out = np.full((len(pos), 18, 3), np.nan)
-    for name, k in BVH_KEYPOINTS.items():
-        out[:, k] = pos[:, names.index(name)]
-    for name, k in ELBOW_KNEE_END.items():
-        out[:, k] = pos[:, names.index(f"{name}_end")]
-    return out
-
-
-def random_params(rng, n):
-    """Random poses: any rotation per joint, quaternions of random norm and sign (wxyz)."""
-    q = rng.normal(size=(n, body.NUM_JOINTS, 4)) * rng.uniform(0.3, 3.0, size=(n, 1, 1))
-    q[0, 3] = [1.0, 1e-7, 0.0, -1e-7]  # near identity
-    q[1] = -q[0]  # the sign ambiguity: q and -q are the same pose
-    t = rng.uniform([-1, -1, 1.5], [1, 1, 5], size=(n, 3))
-    t[1] = t[0]
-    return np.concatenate([t, q.reshape(n, -1)], axis=1)
-
-
-def test_bvh_reproduces_model_fk_for_random_poses(tmp_path):
-    rng = np.random.default_rng(3)
-    shape = posetrack.BodyShape.create(thigh=0.47, forearm=0.23, head_scale=1.1)
-    params = random_params(rng, 12)
-    motion = bvh_from_params(shape, params)
-    path = tmp_path / "m.bvh"
-    io.write_bvh(path, **motion._asdict(), fps=25, camera_to_y_up=True)
-    got = bvh_keypoints(path)
-    want = np.asarray(jax.vmap(body.keypoints, in_axes=(None, 0))(shape, params))
-    joints = list(body.BODY_JOINTS)
-    err = np.linalg.norm(got[:, joints] - want[:, joints], axis=-1)
-    assert err.max() < 1e-4, err.max()  # 0.1 mm; the file is rounded to 0.01 um
-    np.testing.assert_allclose(got[1], got[0], atol=1e-6)  # -q posed like q
-
-
-def test_bvh_rest_pose_is_upright_and_faces_forward(tmp_path):
-    """A person standing in front of the camera, facing it, is the BVH rest pose: identity
-    rotations everywhere, y up, the subject's left at +x, the face towards +z."""
-    shape = posetrack.BodyShape.default()
-    params = np.asarray(body.facing_camera_params(2.5))[None]
-    path = tmp_path / "rest.bvh"
-    io.write_bvh(path, **bvh_from_params(shape, params)._asdict(), fps=30, camera_to_y_up=True)
-    bvh = io.read_bvh(path)
-    np.testing.assert_allclose(bvh.motion[0, :3], [0.0, 0.0, -250.0], atol=1e-6)
-    np.testing.assert_allclose(bvh.motion[0, 3:], 0.0, atol=1e-6)
-    off = dict(zip(bvh.names, bvh.offsets))
-    assert off["neck"][1] > 40 and off["left_shoulder"][0] > 10 and off["right_hip"][0] < -5
-    assert off["right_knee"][1] < -30  # legs hang down
-    head_top = bvh.end_sites[bvh.names.index("neck")]
-    assert head_top[1] > 25 and head_top[2] > 0  # above the neck, a little forward
+# The skeleton itself (T-pose, offsets, random-pose round trip, bvhio): test_bvh_skeleton.py.
 
 
 def test_bvh_from_result_is_the_tracked_motion(result):
     motion = bvh_from_result(result)
     assert motion.root_positions.shape == (N_FRAMES, 3)
-    assert motion.local_rotations_wxyz.shape == (N_FRAMES, 10, 4)
+    assert motion.local_rotations_wxyz.shape == (N_FRAMES, 19, 4)
     np.testing.assert_allclose(motion.root_positions, result.params[:, :3])
     np.testing.assert_allclose(np.linalg.norm(motion.local_rotations_wxyz, axis=-1), 1.0)
+
+
+def test_bvh_in_the_floor_frame_stands_on_the_floor(result, seq, tmp_path):
+    """With the floor frame the root height is the pelvis's height above the floor (about
+    1 m for this synthetic adult: 1.04 m measured, 1.02-1.03 m true) and the toes reach down
+    to the floor (1-2 cm above it measured)."""
+    world = output_frame(result, "floor")
+    path = tmp_path / "floor.bvh"
+    io.write_bvh(path, **bvh_from_result(result, world)._asdict(), fps=30, camera_to_y_up=True)
+    bvh = io.read_bvh(path)
+    tracked = result.status == 0
+    assert tracked.sum() >= N_FRAMES - 2
+    hips_m = bvh.motion[tracked, 1] / 100.0  # Yposition of the root, centimetres in the file
+    n, d = seq.floor_plane[:3], seq.floor_plane[3]
+    truth = (seq.joints3d[:, [8, 11]].mean(axis=1) @ n + d)[tracked]  # the true hips' centre
+    assert np.all((hips_m > 0.75) & (hips_m < 1.2)), hips_m  # a standing adult's hips
+    assert np.median(np.abs(hips_m - truth)) < 0.03, (hips_m, truth)
+    # The lower foot's toe End Site is near the floor in every tracked frame.
+    pos, rot = io.bvh_world_transforms(bvh.parents, bvh.offsets, bvh.channels, bvh.motion)
+    toes = [
+        pos[:, j, 1] + np.einsum("tk,k->t", rot[:, j, 1], bvh.end_sites[j])
+        for j in (bvh.names.index("RightFoot"), bvh.names.index("LeftFoot"))
+    ]
+    lowest_m = np.minimum(*toes)[tracked] / 100.0
+    assert np.all((lowest_m > -0.03) & (lowest_m < 0.06)), lowest_m
 
 
 def test_bvh_rejects_nan_params(result):

@@ -5,7 +5,7 @@ next to it and renamed into place at the end, :func:`posetrack.io.atomic_dir`)::
 
     out/poses.npz            keypoints3d, confidence, params, delta, status, frame_ids[, fps]
     out/keypoints3d/*.json   EasyMocap layout, one file per frame
-    out/motion.bvh           the fitted skeleton and its motion (y-up, centimetres)
+    out/motion.bvh           19-joint skeleton, T-pose rest, and its motion (y-up, centimetres)
     out/markers.trc          the 18 keypoints as OpenSim markers (metres)
     out/overlay.mp4          (or overlay.gif) the skeleton drawn on colour or depth
     out/summary.json         frames, status counts, method, config, body shape, timing
@@ -22,14 +22,12 @@ import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
-from .. import _body as body
 from .._camera import Intrinsics
 from .._depthobs import NO_FLOOR
-from .._so3 import quat_normalize
 from .._tracker import JOINT_STATES, STATUS_NAMES, TrackResult
 from .._world import FRAMES, WorldFrame, camera_frame, floor_frame, transform_params
 from ..io import (
@@ -42,111 +40,20 @@ from ..io import (
     write_poses_npz,
     write_trc,
 )
+from ._bvh_skeleton import BVH_END_SITES as BVH_END_SITES
+from ._bvh_skeleton import BVH_JOINT_NAMES as BVH_JOINT_NAMES
+from ._bvh_skeleton import BVH_KEYPOINTS as BVH_KEYPOINTS
+from ._bvh_skeleton import BVH_PARENTS as BVH_PARENTS
+from ._bvh_skeleton import BvhMotion as BvhMotion
+from ._bvh_skeleton import bvh_from_params as bvh_from_params
 from ._overlay import write_overlay
 
 DEFAULT_FPS = 30.0
 """Frame rate assumed for the BVH and the video when the recording does not say (a folder
 of images has no frame rate)."""
 
-BVH_JOINT_NAMES = ("pelvis",) + body.JOINT_NAMES[1:]
-"""BVH joint names: the body model's kinematic frames, the root named after its place."""
-
-BVH_END_SITES = {
-    "right_elbow": "right_wrist", "left_elbow": "left_wrist", "right_knee": "right_ankle",
-    "left_knee": "left_ankle", "neck": "head_top",
-}  # fmt: skip
-"""Leaf joint -> what its BVH End Site marks."""
-
-BVH_KEYPOINTS = {
-    "neck": 1, "right_shoulder": 2, "right_elbow": 3, "left_shoulder": 5, "left_elbow": 6,
-    "right_hip": 8, "right_knee": 9, "left_hip": 11, "left_knee": 12,
-}  # fmt: skip
-"""BVH joints that coincide with a COCO-18 keypoint (name -> keypoint index). The wrists (4, 7)
-and ankles (10, 13) are the End Sites of the elbows and knees."""
-
 # 180 deg about x: the camera frame (y down) -> a y-up world, as write_bvh(camera_to_y_up=True).
 _C = np.diag([1.0, -1.0, -1.0])
-
-
-class BvhMotion(NamedTuple):
-    """A skeleton animation, exactly the keyword arguments of :func:`posetrack.io.write_bvh`.
-
-    ``write_bvh(path, **motion._asdict(), fps=30, camera_to_y_up=True)`` writes it. Lengths in
-    metres; quaternions wxyz.
-    """
-
-    joint_names: tuple[str, ...]
-    """The 10 joints (:data:`BVH_JOINT_NAMES`)."""
-    parents: tuple[int, ...]
-    """Parent index per joint (-1 for the pelvis)."""
-    offsets: np.ndarray
-    """``float64 (10, 3)`` joint position in its parent's rest frame, metres (see
-    :func:`bvh_from_params` for which frame)."""
-    root_positions: np.ndarray
-    """``float64 (T, 3)`` pelvis centre, camera frame, metres."""
-    local_rotations_wxyz: np.ndarray
-    """``float64 (T, 10, 4)`` unit quaternions, wxyz, each joint relative to its parent (the
-    pelvis relative to the camera)."""
-    end_sites: dict[str, np.ndarray]
-    """Leaf joint -> End Site offset (metres): wrists, ankles, top of the head."""
-
-
-def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
-    """The body model as a BVH skeleton, posed by ``params`` in every frame.
-
-    Joints: the pelvis (root, placed by the root translation and quaternion) and the 9 rotating
-    joints of the model (:data:`posetrack._body.JOINT_NAMES`), with End Sites at the wrists
-    (elbow children), ankles (knee children) and top of the head (neck child). Offsets come
-    from :func:`posetrack._body.joint_offsets`, so the BVH reproduces the model's forward
-    kinematics: its joints are the model's neck, shoulder, elbow, hip and knee keypoints and
-    its End Sites the wrist and ankle keypoints.
-
-    Rest frame. ``write_bvh(camera_to_y_up=True)`` maps the camera frame to a y-up world with
-    ``C = diag(1, -1, -1)`` (points ``C p``, rotations ``C R C``). Handing it the body-frame
-    offsets ``o`` and rotations ``R`` as they are would give a correct motion but an upside-down
-    rest pose facing -z. So every joint frame is re-expressed in the rest frame ``A = C``:
-    offsets ``C o``, local rotations ``C R C``, root rotation ``R_root C``. Along a chain the
-    inserted ``C C = I`` cancel, so the posed skeleton is unchanged, and after the writer's
-    conversion the file holds the model's own rest pose (upright, facing +z, the subject's
-    left = +x, arms hanging) and its joint quaternions unchanged.
-
-    Args:
-        shape: body dimensions (metres).
-        params: ``(T, 43)`` pose parameters (quaternions wxyz, any non-zero norm).
-
-    Returns:
-        A :class:`BvhMotion`.
-    """
-    params = np.asarray(params, dtype=np.float64)
-    if params.ndim != 2 or params.shape[1] != body.NUM_PARAMS:
-        raise ValueError(f"bvh_from_params: params must be (T, 43), got {params.shape}")
-    if not np.isfinite(params).all():
-        t, k = (int(i) for i in np.argwhere(~np.isfinite(params))[0])
-        raise ValueError(f"bvh_from_params: params[{t}, {k}] = {params[t, k]} is not finite")
-    q = quat_normalize(params[:, 3:].reshape(len(params), body.NUM_JOINTS, 4))
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    local = np.stack([w, x, -y, -z], axis=-1)  # C R C for the joints: q_C q q_C^-1
-    # Root: R_root C, i.e. q_root * q_C with q_C = (0, 1, 0, 0).
-    local[:, 0] = np.stack([-x[:, 0], w[:, 0], z[:, 0], -y[:, 0]], axis=-1)
-    offsets = np.asarray(body.joint_offsets(shape), dtype=np.float64) @ _C
-    f = {k: float(v) for k, v in shape.to_dict().items()}
-    s = f["head_scale"]
-    end_body = {
-        "right_elbow": (0.0, -f["forearm"], 0.0),
-        "left_elbow": (0.0, -f["forearm"], 0.0),
-        "right_knee": (0.0, -f["shin"], 0.0),
-        "left_knee": (0.0, -f["shin"], 0.0),
-        # Top of the head capsule (posetrack._body.capsule_offsets: "head").
-        "neck": (0.0, (0.21 + f["head_radius"]) * s, 0.025 * s),
-    }
-    return BvhMotion(
-        joint_names=BVH_JOINT_NAMES,
-        parents=body.JOINT_PARENTS,
-        offsets=offsets,
-        root_positions=params[:, :3].copy(),
-        local_rotations_wxyz=local,
-        end_sites={k: _C @ np.asarray(v) for k, v in end_body.items()},
-    )
 
 
 def bvh_from_result(result: TrackResult, frame: WorldFrame | None = None) -> BvhMotion:
