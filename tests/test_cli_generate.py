@@ -32,6 +32,7 @@ def test_generate_writes_a_recording_and_refuses_to_overwrite(tmp_path):
     out = tmp_path / "rec"
     code, stdout, stderr = run_cli("generate", out, *ARGS)
     assert code == 0, stderr
+    assert stderr == ""  # --quiet: no progress at all
     assert "wrote 3 frames" in stdout
     rec = _load(out)
     assert len(rec) == 3 and rec.intrinsics.width == 64 and rec.observed.any()
@@ -67,3 +68,13 @@ def test_generate_help_lists_the_built_in_motions():
     help_text = next(a.help for a in sub._actions if a.dest == "motion")
     for name in synth.MOTIONS:
         assert name in help_text, name
+
+
+def test_generate_progress_in_a_redirected_log_is_whole_lines(tmp_path):
+    # stderr is a StringIO here, as it is a file with ``2> log.txt``: no carriage returns.
+    code, _, stderr = run_cli("generate", tmp_path / "rec", *ARGS[:-1])
+    assert code == 0, stderr
+    assert "\r" not in stderr and stderr.endswith("\n")
+    lines = stderr.splitlines()
+    assert lines[0].startswith("generating:") and "0/3" in lines[0]
+    assert lines[-1].startswith("generating:") and "3/3" in lines[-1]

@@ -6,6 +6,7 @@ run on blank and noise images (BlazePose does not fire reliably on flat syntheti
 check that nothing is downloaded. Detection on a real person is in ``test_real_data.py``.
 """
 
+import os
 import socket
 import subprocess
 import sys
@@ -325,3 +326,72 @@ def test_closed_detector_is_a_clear_error():
     detector.close()  # idempotent
     with pytest.raises(ValueError, match="closed"):
         detector(np.zeros((32, 32, 3), np.uint8))
+
+
+# --- MediaPipe's native log lines --------------------------------------------------------------
+
+#: What MediaPipe 0.10.21 prints from C++ the first time a graph runs (seen before the filter).
+NATIVE_NOISE = ("XNNPACK delegate", "absl::InitializeLog", "inference_feedback_manager")
+
+DETECT_SCRIPT = """
+import numpy as np
+from posetrack import detect
+frames = [np.zeros((120, 160, 3), np.uint8)] * 3
+kp, conf = detect.detect_keypoints(frames, progress=True)
+print("shape", kp.shape)
+with detect.PoseDetector() as detector:  # an error inside the filtered call still surfaces
+    detector._pose.process = lambda image: 1 / 0
+    detector(frames[0])
+"""
+
+
+def _run_detection(**env):
+    run = subprocess.run(
+        [sys.executable, "-c", DETECT_SCRIPT], capture_output=True, timeout=300,
+        env={**os.environ, **env},
+    )  # fmt: skip
+    # Decoded by hand: text=True would translate "\r" into "\n" and hide a redraw.
+    run.stdout, run.stderr = run.stdout.decode(), run.stderr.decode()
+    return run
+
+
+def test_mediapipe_log_lines_are_silenced_and_progress_and_errors_are_not():
+    if not detect.available():
+        pytest.skip(MISSING)
+    run = _run_detection(POSETRACK_MEDIAPIPE_LOGS="")
+    assert "shape (3, 18, 2)" in run.stdout
+    for noise in NATIVE_NOISE:
+        assert noise not in run.stderr, run.stderr
+    # Progress (stderr is a pipe: whole lines) and the Python exception both come through,
+    # so descriptor 2 was restored after every call, including the one that raised.
+    assert "\r" not in run.stderr
+    assert "detecting: 100% 3/3" in run.stderr
+    assert run.returncode == 1 and "ZeroDivisionError" in run.stderr
+    # The control: with the filter off, the same run prints those lines (so the test can fail).
+    loud = _run_detection(POSETRACK_MEDIAPIPE_LOGS="1")
+    assert all(noise in loud.stderr for noise in NATIVE_NOISE), loud.stderr
+
+
+def test_native_log_filter_drops_info_keeps_errors_and_restores_stderr(capfd):
+    from posetrack.detect._quiet import native_logs_filtered
+
+    lines = (
+        b"INFO: Created TensorFlow Lite XNNPACK delegate for CPU.\n"
+        b"WARNING: All log messages before absl::InitializeLog() is called are written to STDERR\n"
+        b"W0000 00:00:1795580150.167385    9046 inference_feedback_manager.cc:114] Feedback\n"
+        b"I0000 00:00:1795580150.167385    9046 gl_context.cc:357] GL version\n"
+        b"E0000 00:00:1795580150.167385    9046 calculator_graph.cc:887] a real error\n"
+        b"something else\n"
+    )
+    with pytest.raises(RuntimeError, match="inside"):
+        with native_logs_filtered():
+            os.write(2, lines)
+            with native_logs_filtered():  # nested: one redirection, restored once
+                os.write(2, b"nested\n")
+            raise RuntimeError("inside")
+    os.write(2, b"after\n")
+    err = capfd.readouterr().err
+    assert err == (
+        "E0000 00:00:1795580150.167385    9046 calculator_graph.cc:887] a real error\n"
+        "something else\nnested\nafter\n"
+    )

@@ -27,6 +27,7 @@ def _demo(args) -> int:
 
 def _generate(args) -> int:
     from .. import synth
+    from ._progress import ProgressBar
 
     if os.path.exists(args.out) and not args.overwrite:
         raise FileExistsError(
@@ -34,7 +35,8 @@ def _generate(args) -> int:
         )
     seq = synth.generate(
         args.seed, motion=args.motion, n_frames=args.frames, occlusion_level=args.occlusion,
-        width=args.width, height=args.height, progress=not args.quiet,
+        width=args.width, height=args.height,
+        progress=None if args.quiet else ProgressBar("generating"),
         bystander=args.second_person, variety=args.variety,
     )  # fmt: skip
     synth.save(seq, args.out, overwrite=args.overwrite)

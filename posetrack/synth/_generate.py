@@ -6,6 +6,7 @@ import dataclasses
 import math
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -236,7 +237,7 @@ def generate(
     height: int = 480,
     sensor_noise: bool = True,
     detector_noise: bool = True,
-    progress: bool = False,
+    progress: bool | Callable[[int, int, str], None] | None = False,
     intrinsics: Intrinsics | None = None,
     sensor: SensorConfig | None = None,
     detector: DetectorConfig | None = None,
@@ -263,7 +264,9 @@ def generate(
             False gives the exact rendered depth rounded to mm (still 0 out of range).
         detector_noise: apply OpenPose-like errors; False reports the exact projections of
             the ground-truth keypoints with confidence 1 (0 and (0, 0) outside the image).
-        progress: print progress to stderr.
+        progress: ``progress(frames_done, n_frames, "")`` after each frame (the application
+            layer passes ``posetrack.app.ProgressBar("generating")``); True prints a plain
+            line to stderr every tenth of the frames.
         intrinsics: explicit intrinsics (overrides width/height).
         sensor: sensor parameters. detector: detector error parameters.
         occluder_area: nominal area of each occluding rectangle, fraction of the person box.
@@ -435,12 +438,14 @@ def generate(
             by["self_vis"][t], by["occ"][t], by["hidden"][t] = _visibility(
                 by_j3d[t], by_j2d[t], by_subject.kpt_radius, by["own"], ren.label, ren.depth,
                 m, fx, W, H, others=range(n_main))
-        if progress and (t % 10 == 0 or t == n_frames - 1):
+        if callable(progress):
+            progress(t + 1, n_frames, "")
+        elif progress and ((t + 1) * 10 // n_frames > t * 10 // n_frames or t == 0):
+            # Whole lines, no carriage return: this module draws no bars (the app layer does)
+            # and a redirected stderr keeps every redraw.
             el = time.perf_counter() - t_start
-            print(f"\rposetrack.synth: frame {t + 1}/{n_frames} ({el:.1f} s)", end="",
-                  file=sys.stderr, flush=True)
-    if progress:
-        print(file=sys.stderr)
+            print(f"posetrack.synth: frame {t + 1}/{n_frames} ({el:.1f} s)", file=sys.stderr,
+                  flush=True)  # fmt: skip
     centre_occ = np.array([[occ_masks[t, int(round(v)), int(round(u))]
                             if in_image[t, k] else False
                             for k, (u, v) in enumerate(joints2d[t])] for t in range(n_frames)])
