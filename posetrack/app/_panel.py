@@ -20,7 +20,7 @@ camera: up = the camera's -y, height 0 = the camera's height, depth = the camera
 
 Cost: the scale, the projected keypoints of every frame and the static background (grid, ticks,
 labels, floor) are computed once; a frame copies the background and draws the trails' short
-segments (5 trails of 45 at 30 fps) and the skeleton: about 0.5 ms at 240 px (README). NumPy
+segments (5 trails of 45 at 30 fps) and the skeleton: about 0.4 ms at 240 px (README). NumPy
 and OpenCV only, no JAX.
 """
 
