@@ -193,7 +193,7 @@ def test_overlay_has_every_frame(cli):
         frames.append(frame)
     capture.release()
     assert len(frames) == N_FRAMES
-    assert frames[0].shape == (240, 320, 3)
+    assert frames[0].shape == (240, 320 + 240, 3)  # the image and the side view
 
 
 def test_summary_and_printout(cli, poses):
@@ -321,10 +321,11 @@ def test_allow_missing_flags_frames(rec, tmp_path):
 
 
 def test_depth_overlay_without_rgb(rec, tmp_path):
-    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out"))
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out"), "--video-panel", "none")
     assert code == 0, stderr
     capture = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
+    assert capture.get(cv2.CAP_PROP_FRAME_WIDTH) == 320  # --video-panel none: the image alone
 
 
 # -- --detect ---------------------------------------------------------------------------------

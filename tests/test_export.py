@@ -12,6 +12,7 @@ import pytest
 import posetrack
 from posetrack import _body as body
 from posetrack import io
+from posetrack.app import SkeletonPanel
 from posetrack.app._export import (
     DEFAULT_FPS,
     bvh_from_params,
@@ -19,8 +20,9 @@ from posetrack.app._export import (
     output_frame,
     save_results,
 )
-from posetrack.app._overlay import GIF_MAX_WIDTH, GREY, overlay_frame, video_codec, write_video
-from posetrack.app._viz import GREEN, RED
+from posetrack.app._overlay import GIF_MAX_WIDTH, overlay_frame, video_codec, write_video
+from posetrack.app._panel import FLOOR
+from posetrack.app._viz import GREEN, GREY, RED
 
 N_FRAMES = 16
 # Same sequence size and configuration as test_cli_track.py: one JAX compilation per session.
@@ -118,6 +120,7 @@ def test_save_results_writes_every_output(result, seq, tmp_path):
     capture = cv2.VideoCapture(str(saved.overlay))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
     assert capture.get(cv2.CAP_PROP_FPS) == pytest.approx(15.0)
+    assert capture.get(cv2.CAP_PROP_FRAME_WIDTH) == 320 + 240  # the side view beside it
     summary = strict_json(out / "summary.json")
     assert summary == saved.summary
     assert summary["inputs"] == {"who": "test"}
@@ -184,6 +187,7 @@ def test_foreign_folder_is_never_replaced(result, seq, tmp_path):
         (dict(frame_ids=np.arange(3)), r"frame_ids must be \(16,\)"),
         (dict(fps=0.0), "fps must be positive"),
         (dict(frame_ids=np.arange(N_FRAMES)[::-1].copy()), "increase strictly"),
+        (dict(video_panel="front"), "video_panel must be one of"),
     ],
 )
 def test_bad_arguments_fail_before_writing(result, seq, tmp_path, kwargs, match):
@@ -220,6 +224,22 @@ def test_gif_when_no_mp4_writer_opens(result, seq, tmp_path, monkeypatch):
     assert not (tmp_path / "out" / "overlay.mp4").exists()
     assert len(iio.imread(saved.overlay, index=None)) == N_FRAMES
     assert saved.summary["files"]["overlay"] == "overlay.gif"
+
+
+def test_overlay_panel_draws_the_floor_the_tracker_found(result, seq, tmp_path):
+    assert result.floor is not None  # the synthetic room has a floor in view
+    saved = save(tmp_path / "out", result, seq, video_panel="side")
+    capture = cv2.VideoCapture(str(saved.overlay))
+    ok, frame = capture.read()
+    capture.release()
+    assert ok and frame.shape == (240, 320 + 240, 3)
+    panel = SkeletonPanel(result.keypoints3d, result.status, height=240, floor=result.floor)
+    row = round(panel.pixel_of(0.0, 0.0)[1])
+    left, _, right, _ = panel.box
+    line = frame[row, 320 + left : 320 + right, ::-1].astype(int)  # BGR -> RGB
+    assert (np.abs(line - FLOOR).sum(-1) < 60).mean() > 0.8
+    no_floor = save(tmp_path / "out2", result, seq, video_panel=None)
+    assert cv2.VideoCapture(str(no_floor.overlay)).get(cv2.CAP_PROP_FRAME_WIDTH) == 320
 
 
 def test_odd_sized_mp4_is_written(tmp_path):

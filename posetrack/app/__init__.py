@@ -17,10 +17,14 @@ from ._export import status_counts as status_counts
 from ._machine import machine_info as machine_info
 from ._machine import machine_summary as machine_summary
 from ._overlay import write_overlay as write_overlay
+from ._panel import PANELS as PANELS
+from ._panel import SkeletonPanel as SkeletonPanel
+from ._panel import render_panel as render_panel
 from ._progress import Progress as Progress
 from ._progress import ProgressBar as ProgressBar
 from ._viz import CYAN as CYAN
 from ._viz import GREEN as GREEN
+from ._viz import GREY as GREY
 from ._viz import RED as RED
 from ._viz import YELLOW as YELLOW
 from ._viz import colorize_depth as colorize_depth
@@ -47,6 +51,8 @@ __all__ = [
     # pictures (RGB uint8 images, colours as RGB tuples)
     "CYAN",
     "GREEN",
+    "GREY",
+    "PANELS",
     "RED",
     "YELLOW",
     "colorize_depth",
@@ -55,6 +61,8 @@ __all__ = [
     "draw_skeleton",
     "line_plot",
     "put_label",
+    "render_panel",
+    "SkeletonPanel",
     "write_gif",
     "write_overlay",
     "write_png",

@@ -250,8 +250,9 @@ def _track(args) -> int:
     }
     saved = save_results(
         out, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids, fps=fps,
-        rgb=rec.rgb, depth=rec.depth, video=not args.no_video, detections=(kp2d, conf),
-        keypoints2d=detected, info=info, progress=progress, frame=args.frame,
+        rgb=rec.rgb, depth=rec.depth, video=not args.no_video, video_panel=_video_panel(args),
+        detections=(kp2d, conf), keypoints2d=detected, info=info, progress=progress,
+        frame=args.frame,
     )  # fmt: skip
 
     counts = status_counts(result.status)
@@ -442,6 +443,22 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _add_video_options(p: argparse.ArgumentParser) -> None:
+    """``--no-video`` and ``--video-panel`` (``track`` and ``track-many``)."""
+    p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
+    p.add_argument(
+        "--video-panel", choices=("side", "top", "none"), default="side",
+        help="3D view beside the image in the overlay video: the skeleton from the side "
+        "(depth across, height up) or from above, at one metric scale for the clip, with "
+        "1.5 s trails and the floor; none: the image alone (default: %(default)s)",
+    )  # fmt: skip
+
+
+def _video_panel(args) -> str | None:
+    """``--video-panel`` as ``save_results`` takes it."""
+    return None if args.video_panel == "none" else args.video_panel
+
+
 def _version() -> str:
     """The installed package's version (the source tree's when not installed)."""
     from importlib.metadata import PackageNotFoundError, version
@@ -619,7 +636,7 @@ def build_parser() -> argparse.ArgumentParser:
         "forward) or the floor's (y up, metres, origin on the floor under the first tracked "
         "pelvis; needs a visible floor) (default: %(default)s)",
     )  # fmt: skip
-    t.add_argument("--no-video", action="store_true", help="do not write the overlay video")
+    _add_video_options(t)
     t.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
     t.add_argument("--quiet", action="store_true", help="no progress bars")
     t.add_argument(
@@ -649,7 +666,7 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     _add_method_options(m)
     _add_mode_options(m)
-    m.add_argument("--no-video", action="store_true", help="do not write overlay videos")
+    _add_video_options(m)
     m.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
     m.add_argument("--quiet", action="store_true", help="no progress bar")
     m.add_argument(

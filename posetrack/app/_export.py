@@ -7,7 +7,7 @@ next to it and renamed into place at the end, :func:`posetrack.io.atomic_dir`)::
     out/keypoints3d/*.json   EasyMocap layout, one file per frame
     out/motion.bvh           19-joint skeleton, T-pose rest, and its motion (y-up, centimetres)
     out/markers.trc          the 18 keypoints as OpenSim markers (metres)
-    out/overlay.mp4          (or overlay.gif) the skeleton drawn on colour or depth
+    out/overlay.mp4          (or overlay.gif) the skeleton drawn on colour or depth, and a side view
     out/summary.json         frames, status counts, method, config, body shape, timing
 
 :func:`bvh_from_result` gives the BVH skeleton and motion as arrays, for other writers.
@@ -47,6 +47,7 @@ from ._bvh_skeleton import BVH_PARENTS as BVH_PARENTS
 from ._bvh_skeleton import BvhMotion as BvhMotion
 from ._bvh_skeleton import bvh_from_params as bvh_from_params
 from ._overlay import write_overlay
+from ._panel import PANELS
 
 DEFAULT_FPS = 30.0
 """Frame rate assumed for the BVH and the video when the recording does not say (a folder
@@ -166,6 +167,7 @@ def save_results(
     depth: Sequence[np.ndarray] | None = None,
     depth_scale: float = 1000.0,
     video: bool = True,
+    video_panel: str | None = "side",
     detections: tuple[np.ndarray, np.ndarray] | None = None,
     keypoints2d: tuple[np.ndarray, np.ndarray, Sequence[str]] | None = None,
     info: dict[str, Any] | None = None,
@@ -193,7 +195,9 @@ def save_results(
       centimetres (Blender: File > Import > Motion Capture, scale 0.01).
     * ``markers.trc`` (:func:`posetrack.io.write_trc`): the 18 COCO-18 keypoints as OpenSim
       markers, metres, in ``frame``; empty where not estimated.
-    * ``overlay.mp4`` or ``overlay.gif`` (``video=True``): :func:`posetrack._overlay.write_overlay`.
+    * ``overlay.mp4`` or ``overlay.gif`` (``video=True``): :func:`posetrack.app.write_overlay`,
+      with the ``video_panel`` view beside the image (the floor drawn where the tracker found
+      one).
     * ``keypoints2d/<stem>_keypoints.json`` (with ``keypoints2d``): the 2D keypoints the
       tracker was given, as OpenPose JSON (:func:`posetrack.io.write_openpose_json`; nobody
       where every confidence is 0), so a run can be repeated from them without the detector.
@@ -212,6 +216,8 @@ def save_results(
             metre), drawn colourised when ``rgb`` is None.
         depth_scale: units per metre of ``uint16`` depth.
         video: write the overlay (needs ``rgb`` or ``depth``).
+        video_panel: ``"side"`` (default) or ``"top"``: the 3D view beside the image in the
+            overlay (:class:`posetrack.app.SkeletonPanel`); None: the image alone.
         detections: optional ``((T, 18, 2), (T, 18))`` 2D keypoints and confidences given to
             the tracker, drawn as dots on the overlay.
         keypoints2d: optional ``((T, 18, 2), (T, 18), T stems)``: 2D keypoints to save as
@@ -226,8 +232,8 @@ def save_results(
         A :class:`SavedResults`.
 
     Raises:
-        ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames, a
-            floor frame without a floor.
+        ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames, an
+            unknown ``video_panel``, a floor frame without a floor.
         FileExistsError: ``out_dir`` exists and was not written by posetrack.
     """
     t0 = time.perf_counter()
@@ -241,6 +247,10 @@ def save_results(
         raise ValueError(f"save_results: fps must be positive, got {fps!r}")
     if video and rgb is None and depth is None:
         raise ValueError("save_results: video=True needs rgb or depth frames to draw on")
+    if video_panel is not None and video_panel not in PANELS:
+        raise ValueError(
+            f"save_results: video_panel must be one of {PANELS} or None, got {video_panel!r}"
+        )
     if keypoints2d is not None:
         kp2, conf2, stems = keypoints2d
         if np.shape(kp2) != (T, 18, 2) or np.shape(conf2) != (T, 18) or len(stems) != T:
@@ -300,7 +310,8 @@ def save_results(
             overlay = write_overlay(
                 tmp / "overlay", keypoints3d=result.keypoints3d, status=result.status,
                 delta=result.delta, frame_ids=ids, intrinsics=intrinsics, fps=rate, rgb=rgb,
-                depth=depth, depth_scale=depth_scale, detections=detections, progress=progress,
+                depth=depth, depth_scale=depth_scale, detections=detections, panel=video_panel,
+                floor=result.floor, progress=progress,
             )  # fmt: skip
         if keypoints2d is not None:
             (tmp / "keypoints2d").mkdir()

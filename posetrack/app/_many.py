@@ -206,6 +206,7 @@ def track_many_command(args) -> int:
         save_results(
             out / row.name, result, intrinsics=rec.intrinsics, frame_ids=rec.frame_ids,
             fps=rec.fps, rgb=rec.rgb, depth=rec.depth, video=not args.no_video,
+            video_panel=None if args.video_panel == "none" else args.video_panel,
             detections=_followed_detections(result, rec.people2d, rec.people_confidence),
             info=info, progress=False,
         )  # fmt: skip

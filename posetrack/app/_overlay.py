@@ -12,6 +12,10 @@ written file holds.
 Colours: green skeleton = tracked, red = lost (Delta above ``lost_delta`` or agreement
 below ``lost_agreement``), grey = no observation (the held pose, if any); small cyan dots =
 the 2D detections the tracker was given.
+
+Beside the image, by default, a second panel of the same height shows the skeleton from the
+side (or from above) at one fixed metric scale, with trails of the last 1.5 s and the floor
+(:class:`~posetrack.app._panel.SkeletonPanel`); ``panel=None`` leaves the image alone.
 """
 
 from __future__ import annotations
@@ -26,12 +30,9 @@ import numpy as np
 
 from .._camera import Intrinsics
 from .._tracker import STATUS_NAMES
+from ._panel import PANELS, SkeletonPanel
 from ._progress import Progress
-from ._viz import CYAN, GREEN, RED, colorize_depth, draw_skeleton, put_label, write_gif
-
-GREY = (170, 170, 170)
-STATUS_COLORS = (GREEN, RED, GREY)
-"""Skeleton colour (RGB) per status code: tracked, lost, no observation."""
+from ._viz import CYAN, STATUS_COLORS, colorize_depth, draw_skeleton, put_label, write_gif
 
 GIF_MAX_WIDTH = 480
 """GIF fallback frames are downscaled to this width (pixels) at most."""
@@ -273,10 +274,17 @@ def write_overlay(
     depth: Sequence[np.ndarray] | None = None,
     depth_scale: float = 1000.0,
     detections: tuple[np.ndarray, np.ndarray] | None = None,
+    panel: str | None = "side",
+    floor: np.ndarray | None = None,
     progress: bool = False,
     formats: Sequence[str] = ("mp4", "gif"),
 ) -> Path:
     """Render the overlay of a tracked sequence to ``<stem>.mp4`` (or ``.gif``).
+
+    Each video frame is the image with the skeleton drawn on it and, with ``panel``, a
+    :class:`~posetrack.app._panel.SkeletonPanel` view on its right: as high as the image,
+    as wide as high (plus one column where that keeps the frame width even, as ``yuv420p``
+    needs).
 
     Args:
         stem: output path without the suffix.
@@ -291,16 +299,31 @@ def write_overlay(
             used (colourised, near = bright) when ``rgb`` is None.
         depth_scale: units per metre of ``uint16`` depth.
         detections: optional ``((T, 18, 2) pixels, (T, 18) confidence)`` 2D keypoints.
+        panel: ``"side"`` (default) or ``"top"``: the 3D view drawn beside the image; None:
+            the image alone.
+        floor: ``(4,)`` floor plane ``(nx, ny, nz, d)`` (``TrackResult.floor``), drawn in the
+            side view and giving it its up direction; None = unknown.
         progress: show a progress bar on stderr.
         formats: see :func:`write_video`.
 
     Returns:
         The video file written.
+
+    Raises:
+        ValueError: no frames to draw on, an unknown ``panel``.
     """
     if rgb is None and depth is None:
         raise ValueError("write_overlay: give rgb or depth frames to draw on")
+    if panel is not None and panel not in PANELS:
+        raise ValueError(f"write_overlay: panel must be one of {PANELS} or None, got {panel!r}")
     T = len(keypoints3d)
     w, h = intrinsics.width, intrinsics.height
+    side = None
+    if panel is not None:
+        side = SkeletonPanel(
+            keypoints3d, status, kind=panel, height=h, width=h + (w + h) % 2, floor=floor,
+            fps=fps,
+        )  # fmt: skip
 
     def to_metres(d):
         d = np.asarray(d)
@@ -316,13 +339,15 @@ def write_overlay(
                 image = np.asarray(rgb[t], dtype=np.uint8)
             else:
                 image = colorize_depth(to_metres(depth[t]), near=near, far=far, gray=True)
-            yield overlay_frame(
+            drawn = overlay_frame(
                 image, keypoints3d[t], intrinsics, status=int(status[t]),
                 delta=float(delta[t]), frame_id=int(frame_ids[t]),
                 detections=None if detections is None else (detections[0][t], detections[1][t]),
             )  # fmt: skip
+            yield drawn if side is None else np.concatenate([drawn[:h, :w], side.render(t)], axis=1)
 
-    return write_video(stem, frames(), fps=fps, size=(w, h), formats=formats)
+    width = w if side is None else w + side.width
+    return write_video(stem, frames(), fps=fps, size=(width, h), formats=formats)
 
 
 class _Lazy(Sequence[np.ndarray]):

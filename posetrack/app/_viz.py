@@ -22,6 +22,9 @@ RED = (255, 40, 90)
 CYAN = (40, 230, 255)
 YELLOW = (250, 210, 40)
 WHITE = (255, 255, 255)
+GREY = (170, 170, 170)
+STATUS_COLORS = (GREEN, RED, GREY)
+"""Skeleton colour (RGB) per tracker status code: tracked, lost, no observation."""
 
 
 def colorize_depth(
