@@ -290,3 +290,25 @@ def test_video_cut_short_by_a_full_disk_is_an_error_not_a_file(tmp_path):
             write_video(disk / "v", noisy, fps=10.0, size=(160, 120), formats=("mp4",))
         assert info.value.errno == errno.ENOSPC
         assert list(disk.iterdir()) == []
+
+
+# -- long runs --------------------------------------------------------------------------------
+
+
+def test_nearest_estimated_frame_needs_no_frames_squared_table():
+    """Regression: ``Tracker.run`` gave frames without an estimate the nearest estimated pose
+    through an (all frames x estimated frames) table of distances: 1.6 GB for 5 s at the end
+    of a 10,000-frame run (``benchmarks/reliability.py``), terabytes at a million frames."""
+    from posetrack._tracker import nearest_index
+
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        n = int(rng.integers(1, 40))
+        have = np.sort(rng.choice(n, int(rng.integers(1, n + 1)), replace=False))
+        brute = have[np.abs(np.arange(n)[:, None] - have[None]).argmin(axis=1)]
+        np.testing.assert_array_equal(nearest_index(have, n), brute)
+    n = 1_000_000
+    have = np.arange(3, n, 5)  # the table: 1e6 x 2e5 x 8 bytes = 1.6 TB
+    got = nearest_index(have, n)
+    np.testing.assert_array_equal(got[:9], [3, 3, 3, 3, 3, 3, 8, 8, 8])
+    assert got[-1] == have[-1] and np.abs(got - np.arange(n)).max() <= 3
