@@ -725,8 +725,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except OSError as e:  # disk full, permissions: not the input's fault, still no traceback
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_os_error_text(e)}", file=sys.stderr)
         return 1
+
+
+def _os_error_text(e: OSError) -> str:
+    """``e`` as one line without Python's ``[Errno N]`` prefix: "PATH: reason", or the
+    sentence the code raised (``OSError(errno, sentence)`` or ``OSError(sentence)``)."""
+    if e.strerror is None:
+        return str(e)
+    text = e.strerror if e.filename is None else f"{os.fsdecode(e.filename)}: {e.strerror}"
+    if e.filename2 is not None:
+        text += f" (-> {os.fsdecode(e.filename2)})"
+    return " ".join(text.split())  # one line, whatever the message held
 
 
 if __name__ == "__main__":

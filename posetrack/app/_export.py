@@ -15,12 +15,15 @@ next to it and renamed into place at the end, :func:`posetrack.io.atomic_dir`)::
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import errno
 import json
 import math
 import os
+import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -118,9 +121,15 @@ def check_output_dir(path: str | os.PathLike[str]) -> Path:
     A folder is replaced only if it does not exist, is empty, or was written by posetrack
     (carries :data:`posetrack.io.MARKER_NAME`); the same rule :func:`posetrack.io.atomic_dir`
     enforces at the end, checked here so a mistyped ``--out`` does not cost a tracking run.
+    The folder that will hold ``path`` (or the nearest existing folder above it) must also
+    accept new files: a read-only disk or folder fails here, not after tracking. A full disk
+    cannot be told in advance; :func:`save_results` reports it when it happens.
 
     Raises:
-        FileExistsError: ``path`` is a file, or a folder with other data in it.
+        FileExistsError: ``path`` is a file, or a folder with other data in it, or a file
+            stands where a folder above it should be.
+        OSError: no file can be created there (read-only, permissions); the message names
+            ``path`` and the system's reason.
     """
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_dir()):
@@ -130,7 +139,61 @@ def check_output_dir(path: str | os.PathLike[str]) -> Path:
             f"{path}: folder exists and was not written by posetrack (no {MARKER_NAME} file "
             "inside); refusing to replace it. Delete it or choose another output folder."
         )
+    folder = path.absolute().parent
+    while not os.path.lexists(folder) and folder != folder.parent:
+        folder = folder.parent  # atomic_dir creates the missing ones
+    if not folder.is_dir():
+        raise FileExistsError(f"{path}: cannot create it, {folder} is a file, not a folder")
+    try:
+        # An unnamed file (O_TMPFILE on Linux): nothing is left behind, even if killed here.
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as e:
+        raise _write_error(path, e) from e
     return path
+
+
+# The errors of a disk or folder that refuses a write (as opposed to an unreadable input).
+_WRITE_ERRNOS = frozenset(
+    getattr(errno, name)
+    for name in ("ENOSPC", "EDQUOT", "EROFS", "EFBIG", "EACCES", "EPERM", "EIO")
+    if hasattr(errno, name)
+)
+
+
+def _write_error(out: Path, e: OSError) -> OSError:
+    """``e`` (raised while writing ``out``) as one sentence that names ``out``: the raw one
+    names a hidden temporary file, or no file at all (``write`` on a full disk)."""
+    reason = e.strerror or str(e)
+    return OSError(
+        e.errno,
+        f"cannot write {out}: {reason} (nothing was written there; an earlier output in that "
+        "folder is unchanged)",
+    )
+
+
+@contextlib.contextmanager
+def _write_errors_name(out: Path) -> Iterator[None]:
+    """Re-raise a refused write of ``out`` (full disk, read-only...) as :func:`_write_error`;
+    other errors (an unreadable colour frame for the overlay, say) pass unchanged."""
+    try:
+        yield
+    except OSError as e:
+        if _is_write_error(e, out):
+            raise _write_error(out, e) from e
+        raise
+
+
+def _is_write_error(e: OSError, out: Path) -> bool:
+    """Whether ``e`` is a refused write of ``out`` (or of the hidden folder it is built in)."""
+    if isinstance(e, FileExistsError) or e.errno not in _WRITE_ERRNOS:
+        return False
+    if e.filename is None:  # write(), fsync(): always one of the output's files
+        return True
+    name = os.path.abspath(os.fsdecode(e.filename))
+    target = os.path.abspath(out)
+    building = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.")
+    return name == target or name.startswith(building)
 
 
 def _jsonable(value: Any) -> Any:
@@ -235,6 +298,9 @@ def save_results(
         ValueError: inconsistent lengths, a non-positive fps, ``video`` without frames, an
             unknown ``video_panel``, a floor frame without a floor.
         FileExistsError: ``out_dir`` exists and was not written by posetrack.
+        OSError: the disk or folder refused a write (full, read-only, permissions): one
+            sentence naming ``out_dir`` and the system's reason; nothing is left at
+            ``out_dir`` (an earlier output there is unchanged).
     """
     t0 = time.perf_counter()
     T = len(result.params)
@@ -296,7 +362,7 @@ def save_results(
             "ms_per_frame_steady": result.ms_per_frame,
         },
     }
-    with atomic_dir(out) as tmp:
+    with _write_errors_name(out), atomic_dir(out) as tmp:
         write_poses_npz(
             tmp / "poses.npz", keypoints3d=kp3d, confidence=result.confidence, params=params,
             delta=result.delta, status=result.status, fps=fps, frame_ids=ids, frame=world.name,

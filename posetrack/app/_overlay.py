@@ -20,7 +20,10 @@ side (or from above) at one fixed metric scale, with trails of the last 1.5 s an
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
+import struct
 import warnings
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -166,7 +169,10 @@ class _H264Writer:
                 str(path), self.size, fps=float(fps), codec="libx264", pix_fmt_in="rgb24",
                 pix_fmt_out="yuv420p", quality=None, macro_block_size=1,
                 output_params=["-crf", "23", "-preset", "veryfast", "-movflags", "+faststart"],
-                ffmpeg_log_level="error",
+                # FFmpeg writes its messages straight to our stderr (imageio-ffmpeg passes no
+                # pipe for it): a full disk would print six FFmpeg lines before our one
+                # 'error:' line. write_video checks the file instead (_finished_mp4).
+                ffmpeg_log_level="quiet",
             )  # fmt: skip
             with warnings.catch_warnings():
                 # JAX warns at any fork; subprocess forks and at once execs FFmpeg in C, so no
@@ -188,6 +194,43 @@ class _H264Writer:
     def close(self) -> None:
         if self._gen is not None:
             self._gen.close()
+
+
+def _finished_mp4(path: Path) -> bool:
+    """Whether ``path`` is an MP4 whose writer finished: its top-level boxes are whole and one
+    is the index (``moov``), which both writers add last (FFmpeg then moves it to the front).
+
+    Neither writer reports a failure: FFmpeg exits with an error that imageio-ffmpeg does not
+    check, OpenCV's ``VideoWriter.write`` returns nothing. A disk that fills up mid-video left
+    a file cut short, without an index, that no player opens, in an output folder that
+    otherwise looked complete. Reads only the box headers (16 bytes per box).
+    """
+    size = path.stat().st_size
+    found, pos = False, 0
+    with open(path, "rb") as f:
+        while pos + 8 <= size:
+            f.seek(pos)
+            length, kind = struct.unpack(">I4s", f.read(8))
+            if length == 1:  # 64-bit size after the type
+                length = struct.unpack(">Q", f.read(8))[0]
+            elif length == 0:  # the box runs to the end of the file
+                length = size - pos
+            if length < 8 or pos + length > size:
+                return False
+            found |= kind == b"moov"
+            pos += length
+    return found and pos == size
+
+
+def _video_error(path: Path, codec: str) -> OSError:
+    """The error for a video its writer did not finish (see :func:`_finished_mp4`)."""
+    # The writers do not say why. A disk with (almost) nothing left is the usual reason, and
+    # the one a user can act on: say so in the OS's own words.
+    if shutil.disk_usage(path.parent).free < 1 << 20:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    return OSError(
+        errno.EIO, f"the {codec} video writer stopped before finishing the file", str(path)
+    )
 
 
 def video_codec(path: str | os.PathLike[str]) -> str | None:
@@ -227,7 +270,8 @@ def write_video(
         The file written.
 
     Raises:
-        OSError: no format could be written.
+        OSError: no format could be written, or the MP4 writer did not finish the file (a
+            full disk: ``ENOSPC``); a cut-short file is never returned.
     """
     stem = Path(stem)
     w, h = size
@@ -241,10 +285,10 @@ def write_video(
                         writer.write(frame)
                 finally:
                     writer.close()
-                if writer.frames and path.stat().st_size == 0:
-                    raise OSError(
-                        f"{path}: an MP4 writer ({writer.codec}) opened but wrote nothing"
-                    )
+                if writer.frames and not _finished_mp4(path):
+                    error = _video_error(path, writer.codec)
+                    path.unlink(missing_ok=True)
+                    raise error
                 return path
             writer.close()
             path.unlink(missing_ok=True)
