@@ -50,7 +50,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .. import _body as body
-from .._so3 import quat_multiply, quat_normalize
+from .._so3 import quat_multiply, quat_normalize, quat_to_matrix
 
 # (name, parent, model frame f(j), rest alignment about z in quarter turns)
 _SKELETON = (
@@ -81,10 +81,15 @@ BVH_JOINT_NAMES = tuple(row[0] for row in _SKELETON)
 BVH_PARENTS = tuple(-1 if p is None else BVH_JOINT_NAMES.index(p) for _, p, _, _ in _SKELETON)
 """Parent index per BVH joint (-1 for Hips)."""
 
+_FRAME = np.array([row[2] for row in _SKELETON])
+_PARENTS = np.array(BVH_PARENTS)
+# Starts a new model frame (carries that frame's local rotation), or keeps its parent's.
+_ROTATES = np.array([p < 0 or _FRAME[p] != _FRAME[j] for j, p in enumerate(BVH_PARENTS)])
+
 BVH_MODEL_JOINTS = {
-    row[0]: body.JOINT_NAMES[row[2]]
-    for row, parent in zip(_SKELETON, BVH_PARENTS, strict=True)
-    if parent < 0 or _SKELETON[parent][2] != row[2]
+    name: body.JOINT_NAMES[f]
+    for name, f, rotates in zip(BVH_JOINT_NAMES, _FRAME, _ROTATES, strict=True)
+    if rotates
 }
 """BVH joints that carry a rotation of the body model -> the model joint
 (:data:`posetrack._body.JOINT_NAMES`). The other BVH joints keep their rest rotation."""
@@ -104,10 +109,6 @@ BVH_END_SITES = {
 """Leaf joint -> what its End Site marks: the top of the head capsule, the far end of the hand
 and foot capsules' axes (:func:`posetrack._body.capsule_offsets`)."""
 
-_FRAME = np.array([row[2] for row in _SKELETON])
-_PARENTS = np.array(BVH_PARENTS)
-# Starts a new model frame (carries that frame's local rotation), or keeps its parent's.
-_ROTATES = np.array([p < 0 or _FRAME[p] != _FRAME[j] for j, p in enumerate(BVH_PARENTS)])
 _H = np.sqrt(0.5)
 # B_j as quaternions, wxyz: Rz(90 * k deg) for k = 0, 1, -1.
 _ALIGN = np.array([[1.0, 0, 0, 0] if k == 0 else [_H, 0, 0, k * _H] for *_, k in _SKELETON])
@@ -130,10 +131,9 @@ def _conj(q: np.ndarray) -> np.ndarray:
     return q * np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``v`` (..., 3) rotated by unit quaternions ``q`` (..., 4), wxyz."""
-    qv = np.concatenate([np.zeros(v.shape[:-1] + (1,)), v], axis=-1)
-    return quat_multiply(quat_multiply(q, qv), _conj(q))[..., 1:]
+def _unalign(j, v: np.ndarray) -> np.ndarray:
+    """``B_j^T v``: ``v`` (..., 3) in the rest frame of BVH joint(s) ``j``."""
+    return np.einsum("...ji,...j->...i", quat_to_matrix(_ALIGN[j]), v)
 
 
 class BvhMotion(NamedTuple):
@@ -194,9 +194,9 @@ def bvh_rest_pose(shape: body.BodyShape) -> tuple[np.ndarray, dict[str, np.ndarr
         "LeftFoot": cap_b["left_foot"] - kpt_offs[13],
     }
     offsets = np.zeros_like(X)
-    offsets[1:] = _rotate(_conj(_ALIGN[_PARENTS[1:]]), X[1:] - X[_PARENTS[1:]])
+    offsets[1:] = _unalign(_PARENTS[1:], X[1:] - X[_PARENTS[1:]])
     j_of = {name: BVH_JOINT_NAMES.index(name) for name in ends}
-    return offsets, {k: _rotate(_conj(_ALIGN[j_of[k]]), v) for k, v in ends.items()}
+    return offsets, {k: _unalign(j_of[k], v) for k, v in ends.items()}
 
 
 def bvh_from_params(shape: body.BodyShape, params: np.ndarray) -> BvhMotion:
