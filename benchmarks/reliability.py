@@ -47,6 +47,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from posetrack.app._export import without_timings  # noqa: E402
+
 TARGET_GROWTH_MB = 50.0  # the README's promise, after the first 500 frames
 START_FRAME = 500
 PROGRESS = re.compile(r"(tracking|overlay)\s+(\d+)/(\d+)")
@@ -71,17 +75,6 @@ def _files(folder: Path) -> dict[str, bytes]:
         for p in sorted(folder.rglob("*"))
         if p.is_file()
     }
-
-
-def _without_times(summary: bytes) -> object:
-    def drop(value):
-        if isinstance(value, dict):
-            return {k: drop(v) for k, v in value.items() if k != "timing" and not k.endswith("_s")}
-        if isinstance(value, list):
-            return [drop(v) for v in value]
-        return value
-
-    return drop(json.loads(summary))
 
 
 def _status_kb(pid: int) -> tuple[int, int] | None:
@@ -240,7 +233,8 @@ def twice(rec: Path, root: Path, cache: Path) -> tuple[Path, dict]:
         "poses_npz_sha256": [hashlib.sha256(x["poses.npz"]).hexdigest()[:16] for x in (a, b)],
         "files_different": different,
         "summary_identical_without_times": (
-            _without_times(a["summary.json"]) == _without_times(b["summary.json"])
+            without_timings(json.loads(a["summary.json"]))
+            == without_timings(json.loads(b["summary.json"]))
         ),
         "wall_s": walls,  # the first run compiles (fresh cache)
         "write_s": json.loads(a["summary.json"])["timing"]["write_s"],

@@ -35,6 +35,7 @@ import pytest
 import posetrack
 from posetrack import io
 from posetrack.app._cli import main
+from posetrack.app._export import without_timings
 from posetrack.app._overlay import _finished_mp4, write_video
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -75,19 +76,6 @@ def files(folder: Path) -> dict[str, bytes]:
     }
 
 
-def same_run(summary: bytes) -> dict:
-    """``summary.json`` without what differs between two runs of the same inputs (times)."""
-
-    def drop(value):
-        if isinstance(value, dict):
-            return {k: drop(v) for k, v in value.items() if k != "timing" and not k.endswith("_s")}
-        if isinstance(value, list):
-            return [drop(v) for v in value]
-        return value
-
-    return drop(json.loads(summary))
-
-
 def one_error_line(stderr: str) -> str:
     """The only line of ``stderr``, which must be an ``error:`` line (no traceback, no notes)."""
     lines = stderr.strip().splitlines()
@@ -126,7 +114,9 @@ def test_same_inputs_give_byte_identical_outputs(runs):
     assert first["poses.npz"] == second["poses.npz"]  # the promise, byte for byte
     differ = [k for k in first if k != "summary.json" and first[k] != second[k]]
     assert differ == []  # keypoints3d/*.json, motion.bvh, markers.trc, overlay.mp4 too
-    assert same_run(first["summary.json"]) == same_run(second["summary.json"])
+    assert without_timings(json.loads(first["summary.json"])) == without_timings(
+        json.loads(second["summary.json"])
+    )
     # Not trivially equal: the poses moved, so a difference would have shown.
     kp = io.read_poses_npz(runs[0] / "poses.npz")["keypoints3d"]
     assert np.nanmax(np.abs(np.diff(kp, axis=0))) > 0.005

@@ -196,6 +196,21 @@ def _is_write_error(e: OSError, out: Path) -> bool:
     return name == target or name.startswith(building)
 
 
+def without_timings(summary: Any) -> Any:
+    """``summary.json`` (parsed) without what differs between two runs of the same inputs:
+    the ``timing`` section and every ``*_s`` entry (seconds), at any depth. What is left is
+    byte-for-byte reproducible (README, Reliability)."""
+    if isinstance(summary, dict):
+        return {
+            k: without_timings(v)
+            for k, v in summary.items()
+            if k != "timing" and not k.endswith("_s")
+        }
+    if isinstance(summary, list):
+        return [without_timings(v) for v in summary]
+    return summary
+
+
 def _jsonable(value: Any) -> Any:
     """Plain JSON values (NaN and inf become null: JSON has neither)."""
     if isinstance(value, dict):
