@@ -11,9 +11,10 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
 * MHT_h ``mode="offline"`` (the default of ``posetrack track``): the motion model over the
   whole recording, with the body shape refined against the depth of 8 frames; the same with
   the shape measured between lifted keypoints only (``refine=None``, ``--no-refine-shape``:
-  "kp shape"); and with the opt-in left/right relabelling of the detections
-  (``sides=pt.SideSettings()``, ``--fix-sides``: "+ L/R");
-* MHT_h ``mode="online"`` with lag 0 and 4 (causal), and lag 0 + L/R.
+  "kp shape"); and with the opt-in left/right relabelling of the detections, read from both
+  directions (``sides=pt.SideSettings()``, ``--fix-sides``: "+ L/R");
+* MHT_h ``mode="online"`` with lag 0 and 4 (causal), and lag 0 + L/R (the forward pass of
+  the left/right labelling, opt-in online: ``--fix-sides``).
 
 Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
 swapped limb pair, the worst clip's D as a multiple of LVM's on the same clip, and on the
@@ -60,7 +61,8 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
     lr = pt.SideSettings()
-    out["MHT_h offline + L/R"] = pt.track(*args, seq.intrinsics, sides=lr).keypoints3d
+    lr_tr = pt.Tracker(seq.intrinsics, sides=lr)
+    out["MHT_h offline + L/R"] = lr_tr.run(*args).keypoints3d
     out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
     out["MHT_h online L=0 + L/R"] = pt.track(
         *args, seq.intrinsics, mode="online", sides=lr
@@ -72,7 +74,7 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
     out["MHT_h offline"] = off.keypoints3d
     cost = {
         "step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames,
-        "refine_s": tr.refine_s,
+        "refine_s": tr.refine_s, "sides_ms": lr_tr.sides_s * 1000 / frames,
     }  # fmt: skip
     for lag in (0, 4):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
@@ -158,6 +160,8 @@ def main() -> int:
         # benchmarks/speed.py measures both motion models' cost under control.
         "offline_ms_per_frame_min": float(np.min([c["offline_ms"] for c in costs])),
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
+        # The opt-in offline left/right pre-pass (both directions), host side.
+        "sides_ms_per_frame": float(np.median([c["sides_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
         # Body shape refinement: once per recording (the first clip's includes compilation).
         "refine_s_median": float(np.median([c["refine_s"] for c in costs])),
@@ -183,7 +187,8 @@ def main() -> int:
         f"\ncost per frame: step {step:.1f} ms; offline smoother "
         f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
         f" ms the least over clips ({cost['offline_total_over_step']:.2f}x the step, from the "
-        f"median); online model +{cost['online_ms_per_frame']:.1f} ms "
+        f"median; + L/R's pre-pass +{cost['sides_ms_per_frame']:.1f} ms); online model "
+        f"+{cost['online_ms_per_frame']:.1f} ms "
         f"({cost['online_total_over_step']:.2f}x); body shape refinement "
         f"{cost['refine_s_median']:.1f} s per recording (median)"
     )

@@ -78,6 +78,7 @@ from ._shapefit import refine_shape as refine_shape
 from ._sides import SIDE_GROUPS as SIDE_GROUPS
 from ._sides import SideLabeller as SideLabeller
 from ._sides import SideSettings as SideSettings
+from ._sides import two_sided_exchanged as two_sided_exchanged
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate

@@ -39,7 +39,7 @@ from ._observe import Landmarks
 from ._programs import Program, prepare_in_background, program
 from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
-from ._sides import SideLabeller, SideSettings
+from ._sides import SideLabeller, SideSettings, two_sided_exchanged
 from ._smooth import (
     OnlineWindow,
     SmoothSettings,
@@ -309,9 +309,11 @@ class Tracker:
     **Left/right swaps of the detector** can be undone before each frame is fitted
     (``sides=SideSettings()``; off by default): a group of keypoints (arms, legs) whose left
     and right sides both jump and later jump back is read exchanged while that is the
-    continuous reading. :attr:`TrackResult.exchanged` says where. It helps on clips with
-    many detector swaps and hurts under occlusion and where legs cross in side views (see the
-    README's motion section), hence opt-in.
+    continuous reading. :attr:`TrackResult.exchanged` says where. In :meth:`run` offline a
+    pre-pass reads the whole recording forwards and backwards (:func:`two_sided_exchanged`);
+    online and in :meth:`update` only the forward pass exists. It helps on clips with many
+    detector swaps; on occluded side views it still misreads sometimes (README, Motion),
+    hence opt-in.
     """
 
     def __init__(
@@ -406,6 +408,8 @@ class Tracker:
         self._step_times: list[float] = []
         self._motion_times: list[float] = []
         self.smooth_s = 0.0
+        self.sides_s = 0.0
+        """Seconds of the last :meth:`run`'s left/right pre-pass (offline, ``sides`` set)."""
         self.refine_s = 0.0
         self._prepare_started = False
         # (StepBatcher, slot) when track_many runs this tracker's steps batched with others'.
@@ -464,6 +468,10 @@ class Tracker:
         )
         self.exchanged = np.zeros(0 if self.sides is None else len(self.sides.groups), bool)
         """Which :attr:`sides` groups the last frame's detections had exchanged."""
+        # Offline (run): the pre-pass's followed person and labelling per frame, and the frame
+        # being tracked. None outside run() and online.
+        self._two_sided: tuple[np.ndarray, np.ndarray] | None = None
+        self._run_frame: int | None = None
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -597,9 +605,15 @@ class Tracker:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
         if self._labeller is not None:
+            raw = kp, conf
             kp, conf, self.exchanged = self._labeller.update(
                 kp, conf, cands.points3d[p], cands.has_depth[p]
             )
+            if self._two_sided is not None and self._run_frame is not None:
+                persons, exchanged = self._two_sided
+                if persons[self._run_frame] == p:  # the detection the pre-pass labelled
+                    self.exchanged = exchanged[self._run_frame]
+                    kp, conf = self._labeller.relabel(*raw, self.exchanged)
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]
             z_ref = float(np.median(cands.points3d[p, own, 2])) if own.any() else None
@@ -828,47 +842,55 @@ class Tracker:
         # of the recording (its depth as fitted: other people removed) is kept for refine_shape.
         n_keep = 0 if self.refine is None else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
-        for t in range(T):
-            est, st = self.update(depths[t], keypoints2d[t], confidence[t])
-            if self.mode == "online" and self.lagged is not None and self.lag > 0:
-                i, p_lag, k_lag = self.lagged
-                params[i], kp3[i] = p_lag, k_lag
-            status[t] = st
-            person[t] = self._person
-            if exchanged is not None and self._person >= 0:
-                exchanged[t] = self.exchanged
-            num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
-            if progress is not None:
-                progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
-            if est is None:
-                if self._state is not None:
-                    # The track lives but its person was not seen (nobody, or only other
-                    # people): hold the last pose, as for a frame without observation.
-                    params[t] = np.asarray(self._state.best)
-                    kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
-                continue
-            lm = est.landmarks
-            lm3[t], has_d[t], det[t], kp2[t], lm_conf[t] = (
-                np.asarray(lm.points3d),
-                np.asarray(lm.has_depth),
-                np.asarray(lm.detected),
-                np.asarray(lm.keypoints2d),
-                np.asarray(lm.confidence),
-            )
-            if st == NO_OBSERVATION:
-                prev = self._state.best if self._state is not None else None
-                if prev is not None:
-                    params[t] = np.asarray(prev)
-                    kp3[t] = np.asarray(body.keypoints(self.shape, prev))
-                continue
-            params[t] = np.asarray(est.params)
-            kp3[t] = np.asarray(est.keypoints3d)
-            delta[t] = float(est.delta)
-            conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
-            if n_keep and st == TRACKED:
-                n3d, stretch = int(has_d[t].sum()), t * n_keep // T
-                if n3d > kept.get(stretch, (-1,))[0]:
-                    kept[stretch] = (n3d, t, self._depth_fit)
+        if self.sides is not None and self.mode == "offline":
+            t0 = time.perf_counter()
+            self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
+            self.sides_s = time.perf_counter() - t0
+        try:
+            for t in range(T):
+                self._run_frame = t
+                est, st = self.update(depths[t], keypoints2d[t], confidence[t])
+                if self.mode == "online" and self.lagged is not None and self.lag > 0:
+                    i, p_lag, k_lag = self.lagged
+                    params[i], kp3[i] = p_lag, k_lag
+                status[t] = st
+                person[t] = self._person
+                if exchanged is not None and self._person >= 0:
+                    exchanged[t] = self.exchanged
+                num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
+                if progress is not None:
+                    progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
+                if est is None:
+                    if self._state is not None:
+                        # The track lives but its person was not seen (nobody, or only other
+                        # people): hold the last pose, as for a frame without observation.
+                        params[t] = np.asarray(self._state.best)
+                        kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
+                    continue
+                lm = est.landmarks
+                lm3[t], has_d[t], det[t], kp2[t], lm_conf[t] = (
+                    np.asarray(lm.points3d),
+                    np.asarray(lm.has_depth),
+                    np.asarray(lm.detected),
+                    np.asarray(lm.keypoints2d),
+                    np.asarray(lm.confidence),
+                )
+                if st == NO_OBSERVATION:
+                    prev = self._state.best if self._state is not None else None
+                    if prev is not None:
+                        params[t] = np.asarray(prev)
+                        kp3[t] = np.asarray(body.keypoints(self.shape, prev))
+                    continue
+                params[t] = np.asarray(est.params)
+                kp3[t] = np.asarray(est.keypoints3d)
+                delta[t] = float(est.delta)
+                conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
+                if n_keep and st == TRACKED:
+                    n3d, stretch = int(has_d[t].sum()), t * n_keep // T
+                    if n3d > kept.get(stretch, (-1,))[0]:
+                        kept[stretch] = (n3d, t, self._depth_fit)
+        finally:
+            self._two_sided, self._run_frame = None, None
         if self._batched is not None:  # no more steps: the other sequences need not wait
             self._batched[0].leave(self._batched[1])
         per_frame = None
@@ -961,6 +983,30 @@ class Tracker:
         :meth:`estimate_shape` (before any pose exists, people are followed by their lifted
         keypoints alone, with the same rules as :meth:`update`)."""
         ds, kps, confs = [], [], []
+        for d, cands, p in self._followed(depths, keypoints2d, confidence, n):
+            kp, conf = cands.person(p) if p >= 0 else (np.zeros((18, 2)), np.zeros(18))
+            ds.append(d)
+            kps.append(kp)
+            confs.append(conf)
+        return ds, kps, confs
+
+    def _two_sided_labels(self, depths, keypoints2d, confidence) -> tuple[np.ndarray, np.ndarray]:
+        """Offline left/right labelling (:func:`two_sided_exchanged`) over the whole recording:
+        ``(person (T,), exchanged (T, groups))``, the person as a pre-pass follows them. A frame
+        where the tracker follows another detection falls back to the forward pass."""
+        persons, frames = [], []
+        for _, cands, p in self._followed(depths, keypoints2d, confidence, len(depths)):
+            persons.append(p)
+            frames.append(
+                None if p < 0 else (*cands.person(p), cands.points3d[p], cands.has_depth[p])
+            )
+        exchanged = two_sided_exchanged(frames, float(self.intrinsics.fx), self.sides)
+        return np.asarray(persons, np.int64), exchanged
+
+    def _followed(self, depths, keypoints2d, confidence, n: int):
+        """Yield ``(depth metres, candidates, followed index or -1)`` for the first ``n``
+        frames, followed by a fresh :class:`PersonFollower` by the rules of :meth:`update` (by
+        lifted keypoints alone: no pose exists yet)."""
         follower = PersonFollower(self.follow, self.person_rule, self.intrinsics)
         for i in range(n):
             d = check_depth(self.intrinsics, depths[i], self.depth_scale, f"frame {i}")
@@ -968,11 +1014,7 @@ class Tracker:
             cands = lift_candidates(d, kp_all, conf_all, self.intrinsics)
             p = follower.select(cands)
             follower.observe(cands, p)
-            kp, conf = cands.person(p) if p >= 0 else (np.zeros((18, 2)), np.zeros(18))
-            ds.append(d)
-            kps.append(kp)
-            confs.append(conf)
-        return ds, kps, confs
+            yield d, cands, p
 
 
 def nearest_index(have: np.ndarray, n: int) -> np.ndarray:
@@ -1018,7 +1060,8 @@ def track(
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
     motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
     "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior; ``sides``
-    undoes the detector's left/right swaps (:class:`SideSettings`; ``None``, the default: off)."""
+    undoes the detector's left/right swaps (:class:`SideSettings`, read from both directions
+    offline; ``None``, the default: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides, refine=refine,

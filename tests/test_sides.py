@@ -125,3 +125,31 @@ def test_reset_forgets_the_past():
     lab.reset()
     # A new track starting inside the swap has nothing to compare with: labels as detected.
     assert not lab.update(bad_kp[25], bad_conf[25], p3[25], has[25])[2].any()
+
+
+def _frames(kp, conf, p3, has):
+    return [(kp[t], conf[t], p3[t], has[t]) for t in range(len(kp))]
+
+
+def test_two_sided_labelling_undoes_swaps_in_the_middle_and_at_the_end():
+    kp, conf, p3, has = _walk()
+    mid, end = np.arange(30, 40), np.arange(70, 80)
+    bad_kp, bad_conf = _swap(kp, conf, mid, ARMS)
+    bad_kp, bad_conf = _swap(bad_kp, bad_conf, end, LEGS)
+    ex = pt.two_sided_exchanged(_frames(bad_kp, bad_conf, p3, has), FX)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), mid)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 1]), end)
+
+
+def test_two_sided_labelling_skips_frames_without_the_person_and_checks_its_margin():
+    kp, conf, p3, has = _walk()
+    mid = np.arange(30, 40)
+    bad_kp, bad_conf = _swap(kp, conf, mid, ARMS)
+    frames = _frames(bad_kp, bad_conf, p3, has)
+    frames[35] = None  # nobody followed in that frame: read as detected, the rest unchanged
+    ex = pt.two_sided_exchanged(frames, FX)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), np.setdiff1d(mid, [35]))
+    # A margin above what the swap's two jumps are worth leaves it alone.
+    assert not pt.two_sided_exchanged(frames, FX, pt.SideSettings(two_sided_margin=5.0)).any()
+    with pytest.raises(ValueError, match="two_sided_margin"):
+        pt.SideSettings(two_sided_margin=-0.1)

@@ -307,7 +307,7 @@ def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes)
         kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
         conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
     args = (clip.depth, kp, conf, clip.intrinsics)
-    fixed = pt.track(*args, sides=pt.SideSettings())
+    fixed = pt.track(*args, sides=pt.SideSettings())  # offline: read from both directions
     raw = pt.track(*args)
     assert raw.exchanged is None
     seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)

@@ -233,7 +233,7 @@ def _track(args) -> int:
             "seed": args.seed,
             "mode": mode,
             "lag": args.online or 0,
-            "fix_sides": args.fix_sides,
+            "fix_sides": tracker.sides is not None,
             "refine_shape": not args.no_refine_shape,
         },
         "notes": notes,
@@ -628,7 +628,8 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--fix-sides", action="store_true",
         help="undo the detector's left/right swaps of the arms and legs before fitting "
-        "(helps with frequent swaps, hurts under occlusion; see the README)",
+        "(offline read from both directions; helps with frequent swaps, can misread occluded "
+        "side views; see the README)",
     )  # fmt: skip
     t.add_argument(
         "--frame", choices=("camera", "floor"), default="camera",
