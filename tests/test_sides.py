@@ -40,9 +40,14 @@ def _swap(kp, conf, frames, pairs):
     return kp, conf
 
 
+def _frames(kp, conf, p3, has):
+    """Per frame, what SideLabeller.update and two_sided_exchanged take."""
+    return [(kp[t], conf[t], p3[t], has[t]) for t in range(len(kp))]
+
+
 def _run(kp, conf, p3, has, settings=pt.SideSettings()):
     lab = pt.SideLabeller(FX, settings)
-    out = [lab.update(kp[t], conf[t], p3[t], has[t]) for t in range(len(kp))]
+    out = [lab.update(*frame) for frame in _frames(kp, conf, p3, has)]
     return (np.stack([o[0] for o in out]), np.stack([o[1] for o in out]),
             np.stack([o[2] for o in out]))  # fmt: skip
 
@@ -125,10 +130,6 @@ def test_reset_forgets_the_past():
     lab.reset()
     # A new track starting inside the swap has nothing to compare with: labels as detected.
     assert not lab.update(bad_kp[25], bad_conf[25], p3[25], has[25])[2].any()
-
-
-def _frames(kp, conf, p3, has):
-    return [(kp[t], conf[t], p3[t], has[t]) for t in range(len(kp))]
 
 
 def test_two_sided_labelling_undoes_swaps_in_the_middle_and_at_the_end():
