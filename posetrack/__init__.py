@@ -78,6 +78,8 @@ from ._shapefit import refine_shape as refine_shape
 from ._sides import SIDE_GROUPS as SIDE_GROUPS
 from ._sides import SideLabeller as SideLabeller
 from ._sides import SideSettings as SideSettings
+from ._sides import arbitration_spans as arbitration_spans
+from ._sides import prefer_exchanged as prefer_exchanged
 from ._sides import two_sided_exchanged as two_sided_exchanged
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
@@ -132,7 +134,8 @@ __all__ = [
     # the motion model
     "MODES", "SmoothSettings", "smooth_window",
     # the detector's left/right swaps
-    "SIDE_GROUPS", "SideLabeller", "SideSettings",
+    "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "prefer_exchanged",
+    "two_sided_exchanged",
     # which person is followed
     "FollowSettings", "choose_person", "detection_score", "lift_candidates", "match_costs",
     # metrics

@@ -36,16 +36,34 @@ default: on the standard tuning clips relabelling them made more errors than it 
 (face 17 -> 88 wrong frames, torso 0 -> 10), and a wrongly exchanged torso turns the body
 round.
 
-The tracker runs it only when asked (``Tracker(..., sides=SideSettings())``, ``posetrack track
---fix-sides``). The forward pass alone removed most swapped-limb frames where the person is
-seen whole, but under occlusion (one side hidden: its return looks like a jump) it misread
-often enough to cost accuracy; read backwards the same stretches show no jump. So
-:meth:`Tracker.run` offline reads the whole recording from both directions
-(:func:`two_sided_exchanged`): on the tuning clips (seeds 100-111, standard and wide,
-occlusion 0 and 2) the wrongly exchanged group-frames fell from 31 / 107 (wide clean /
-occluded, forward) to 16 / 47, and on the standard occluded clips from 64 to 0. It stays
-opt-in: on occluded side views (a person walking across the image, arms overlapping in the
-image) it still exchanged correct labels on report clips (README, Motion).
+The forward pass alone removed most swapped-limb frames where the person is seen whole, but
+under occlusion (one side hidden: its return looks like a jump) it misread often enough to
+cost accuracy; read backwards the same stretches show no jump. So :meth:`Tracker.run` offline
+reads the whole recording from both directions (:func:`two_sided_exchanged`): on the tuning
+clips (seeds 100-111, standard and wide, occlusion 0 and 2) the wrongly exchanged
+group-frames fell from 31 / 107 (wide clean / occluded, forward) to 16 / 47, and on the
+standard occluded clips from 64 to 0. Taken as read, that reading still exchanged correct
+labels on occluded side views (a person walking across the image, arms overlapping in the
+image), where 2D continuity is ambiguous.
+
+**The depth arbitrates** (:attr:`SideSettings.arbitrate`, the offline default). Each stretch
+read exchanged (:func:`arbitration_spans`: the exchanged run plus
+:attr:`SideSettings.arbitrate_after` frames) is tracked twice from the same tracker state,
+with the labels exchanged and as detected, and the exchange is kept only where its poses'
+Delta (Eq. (3), the tracker's own depth score) summed over the stretch is lower
+(:func:`prefer_exchanged`). Where the sides overlap in the image, both readings render alike
+and a tie keeps the detections' labels; a true swap drags the model's limbs across the body
+and the depth says so. On 20 occluded side-view tuning clips (seeds 116-135, walk_across and
+turn) D was 64.0 mm without relabelling, 66.3 with the two-sided reading taken as read and
+63.9 arbitrated; on the wide tuning clips (seeds 100-111) 78.7 / 60.0 / 63.5 mm clean. A
+margin of 0.1 on the Delta sums was tried and made tuning clips worse (a turn clip 52.7 ->
+57.1 mm): small differences are informative. The cost is the second tracking of those
+stretches (benchmarks/motion.py records the share of frames).
+
+The tracker relabels by default in offline :meth:`Tracker.run` (``sides="auto"``;
+``sides=None``, ``posetrack track --no-fix-sides`` turn it off). Online
+(``Tracker(..., mode="online", sides=SideSettings())``, ``--online --fix-sides``) only the
+forward pass exists and is taken as read: opt-in.
 
 NumPy, not JAX: a handful of numbers per frame beside the person association, which is host
 side too (:mod:`posetrack._associate`), and each frame depends on the last.
@@ -95,9 +113,30 @@ class SideSettings:
     """Offline (the whole recording known, :func:`two_sided_exchanged`): a group is read
     exchanged only where the forward and the backward pass together favour it by more than
     this (m)."""
+    arbitrate: bool = True
+    """Offline: the depth decides (:func:`arbitration_spans`). Each stretch the two-sided
+    labelling reads exchanged is tracked twice from the same state, with the labels exchanged
+    and as detected, and the exchange is kept only where its poses' Delta (Eq. (3)) summed
+    over the stretch is lower by more than :attr:`arbitrate_margin`. False: the labelling is
+    taken as read (the 2D evidence alone)."""
+    arbitrate_after: int = 5
+    """Frames after each exchanged stretch that its Delta comparison also covers (a wrong
+    labelling leaves the limbs misplaced for a few frames after it ends)."""
+    arbitrate_margin: float = 0.0
+    """How much lower (Delta summed over the stretch) the exchanged reading must score."""
 
     def __post_init__(self):
-        for name in ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin"):
+        if not isinstance(self.arbitrate, bool):
+            raise ValueError(
+                f"SideSettings: arbitrate must be True or False, got {self.arbitrate!r}"
+            )
+        a = self.arbitrate_after
+        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or a < 0:
+            raise ValueError(
+                f"SideSettings: arbitrate_after must be an int >= 0 (frames), got {a!r}"
+            )
+        names = ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin")
+        for name in (*names, "arbitrate_margin"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"SideSettings: {name} must be a finite number, got {v!r}")
@@ -277,3 +316,50 @@ def two_sided_exchanged(
             margins[1, t] = lab.margin
     seen = np.array([f is not None for f in frames], bool)
     return (margins.sum(axis=0) < -settings.two_sided_margin) & seen[:, None]
+
+
+def arbitration_spans(exchanged: np.ndarray, after: int) -> list[tuple[int, int]]:
+    """The stretches of a recording whose left/right labelling the depth arbitrates.
+
+    Each maximal run of frames in which any group is read exchanged, extended by ``after``
+    frames (not past the end); runs that then overlap or touch are merged.
+
+    Args:
+        exchanged: ``bool (frames, groups)``, e.g. from :func:`two_sided_exchanged`.
+        after: frames added after each run.
+
+    Returns:
+        ``[(start, stop), ...]``, increasing, ``stop`` exclusive.
+    """
+    any_ex = np.asarray(exchanged, bool).reshape(len(exchanged), -1).any(axis=1)
+    T = len(any_ex)
+    spans: list[tuple[int, int]] = []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], any_ex.astype(np.int8), [0]])))
+    for start, stop in zip(edges[::2], edges[1::2], strict=True):
+        stop = min(int(stop) + after, T)
+        if spans and start <= spans[-1][1]:
+            spans[-1] = (spans[-1][0], stop)
+        else:
+            spans.append((int(start), stop))
+    return spans
+
+
+def prefer_exchanged(
+    delta_detected: np.ndarray, delta_exchanged: np.ndarray, margin: float
+) -> bool:
+    """Whether a stretch tracked with the labels exchanged scored better than as detected.
+
+    Args:
+        delta_detected, delta_exchanged: ``(frames,)`` Delta of each frame's pose (Eq. (3));
+            NaN where the frame has none.
+        margin: how much lower the exchanged reading's sum must be.
+
+    The sums run over the frames both readings estimated; a reading that estimated fewer
+    frames (it lost the track) does not win.
+    """
+    a, b = np.asarray(delta_detected, float), np.asarray(delta_exchanged, float)
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    both = fa & fb
+    if fb.sum() < fa.sum() or not both.any():
+        return False
+    return bool(b[both].sum() < a[both].sum() - margin)

@@ -8,6 +8,7 @@ re-initialising when observations return.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
@@ -39,7 +40,13 @@ from ._observe import Landmarks
 from ._programs import Program, prepare_in_background, program
 from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
-from ._sides import SideLabeller, SideSettings, two_sided_exchanged
+from ._sides import (
+    SideLabeller,
+    SideSettings,
+    arbitration_spans,
+    prefer_exchanged,
+    two_sided_exchanged,
+)
 from ._smooth import (
     OnlineWindow,
     SmoothSettings,
@@ -140,7 +147,8 @@ class TrackResult:
     exchanged: np.ndarray | None = None
     """(T, groups) bool: where the detector's left and right keypoints of each
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
-    (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``, the default)."""
+    (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``; online and
+    per-frame by default)."""
     floor: np.ndarray | None = None
     """(4,) the first floor plane the tracker found in this recording, ``(nx, ny, nz, d)``
     in the camera frame with ``n @ p + d`` a point's height (metres); ``None`` when none was
@@ -273,6 +281,44 @@ def check_depth(intrinsics: Intrinsics, depth, depth_scale: float, where: str) -
     )
 
 
+@dataclasses.dataclass
+class _RunOutputs:
+    """What :meth:`Tracker.run` collects per frame (NumPy, frames first)."""
+
+    kp3: np.ndarray
+    params: np.ndarray
+    delta: np.ndarray
+    status: np.ndarray
+    conf: np.ndarray
+    lm3: np.ndarray
+    has_d: np.ndarray
+    det: np.ndarray
+    person: np.ndarray
+    exchanged: np.ndarray
+    num_people: np.ndarray
+    kp2: np.ndarray
+    lm_conf: np.ndarray
+
+    @classmethod
+    def empty(cls, T: int, groups: int) -> _RunOutputs:
+        return cls(
+            kp3=np.full((T, 18, 3), np.nan), params=np.full((T, 43), np.nan),
+            delta=np.full(T, np.nan), status=np.full(T, NO_OBSERVATION, np.int8),
+            conf=np.zeros((T, 18), np.float32), lm3=np.zeros((T, 18, 3)),
+            has_d=np.zeros((T, 18), bool), det=np.zeros((T, 18), bool),
+            person=np.full(T, -1, np.int64), exchanged=np.zeros((T, groups), bool),
+            num_people=np.zeros(T, np.int64), kp2=np.zeros((T, 18, 2), np.float32),
+            lm_conf=np.zeros((T, 18), np.float32),
+        )  # fmt: skip
+
+    def copy_span(self, start: int, stop: int) -> dict[str, np.ndarray]:
+        return {f.name: getattr(self, f.name)[start:stop].copy() for f in dataclasses.fields(self)}
+
+    def put_span(self, start: int, span: dict[str, np.ndarray]) -> None:
+        for name, v in span.items():
+            getattr(self, name)[start : start + len(v)] = v
+
+
 class Tracker:
     """Track one person through an RGB-D sequence.
 
@@ -306,14 +352,17 @@ class Tracker:
     every frame (what a per-frame choice does: the track hops between people; kept for
     comparison).
 
-    **Left/right swaps of the detector** can be undone before each frame is fitted
-    (``sides=SideSettings()``; off by default): a group of keypoints (arms, legs) whose left
-    and right sides both jump and later jump back is read exchanged while that is the
-    continuous reading. :attr:`TrackResult.exchanged` says where. In :meth:`run` offline a
-    pre-pass reads the whole recording forwards and backwards (:func:`two_sided_exchanged`);
-    online and in :meth:`update` only the forward pass exists. It helps on clips with many
-    detector swaps; on occluded side views it still misreads sometimes (README, Motion),
-    hence opt-in.
+    **Left/right swaps of the detector** are undone before each frame is fitted
+    (``sides``, :class:`SideSettings`; ``"auto"``, the default: on in offline :meth:`run`,
+    off online and per-frame): a group of keypoints (arms, legs) whose left and right sides
+    both jump and later jump back is read exchanged while that is the continuous reading.
+    Offline a pre-pass reads the whole recording forwards and backwards
+    (:func:`two_sided_exchanged`), and the depth arbitrates: each stretch read exchanged is
+    tracked twice from the same state, exchanged and as detected, and the exchange is kept
+    only where its poses' Delta is lower (:attr:`side_spans`). 2D continuity alone misreads
+    occluded side views (arms overlapping in the image); the depth does not reward those
+    misreadings. Online (``sides=SideSettings()``) only the forward pass exists, taken as
+    read. :attr:`TrackResult.exchanged` says where labels were exchanged.
     """
 
     def __init__(
@@ -330,7 +379,7 @@ class Tracker:
         lag: int = 0,
         motion: SmoothSettings = SmoothSettings(),
         fps: float = 30.0,
-        sides: SideSettings | None = None,
+        sides: SideSettings | str | None = "auto",
         refine: ShapeFitSettings | str | None = "auto",
     ):
         if mode not in MODES:
@@ -347,8 +396,12 @@ class Tracker:
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
         self.mode, self.lag, self.motion, self.fps = mode, int(lag), motion, float(fps)
+        if isinstance(sides, str) and sides == "auto":
+            sides = SideSettings() if mode == "offline" else None
         if sides is not None and not isinstance(sides, SideSettings):
-            raise TypeError(f"Tracker: sides must be posetrack.SideSettings or None, got {sides!r}")
+            raise TypeError(
+                f"Tracker: sides must be 'auto', posetrack.SideSettings or None, got {sides!r}"
+            )
         self.sides: SideSettings | None = sides
         if isinstance(refine, str) and refine == "auto":
             auto = mode == "offline" and shape is None
@@ -415,6 +468,11 @@ class Tracker:
         # (StepBatcher, slot) when track_many runs this tracker's steps batched with others'.
         self._batched = None
         self._found_floor: np.ndarray | None = None  # the first in this run (TrackResult.floor)
+        self._depth_fit: np.ndarray | None = None
+        self.side_spans: list[tuple[int, int, float, float, bool]] = []
+        """After an offline :meth:`run` with :attr:`sides` arbitrated: per stretch the
+        two-sided labelling read exchanged, ``(start, stop, Delta summed as detected, Delta
+        summed exchanged, exchange kept)``."""
         self._forget_person()
         self._reset_motion()
 
@@ -472,6 +530,10 @@ class Tracker:
         # being tracked. None outside run() and online.
         self._two_sided: tuple[np.ndarray, np.ndarray] | None = None
         self._run_frame: int | None = None
+        # Offline with arbitration (SideSettings.arbitrate): which labels the frame being
+        # tracked takes, "detected" or "two-sided"; None: the pre-pass's, else the forward
+        # pass's.
+        self._labels: str | None = None
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -609,7 +671,12 @@ class Tracker:
             kp, conf, self.exchanged = self._labeller.update(
                 kp, conf, cands.points3d[p], cands.has_depth[p]
             )
-            if self._two_sided is not None and self._run_frame is not None:
+            if self._labels is not None and (
+                self._labels == "detected" or self._two_sided[0][self._run_frame] != p
+            ):
+                kp, conf = raw
+                self.exchanged = np.zeros_like(self.exchanged)
+            elif self._two_sided is not None and self._run_frame is not None:
                 persons, exchanged = self._two_sided
                 if persons[self._run_frame] == p:  # the detection the pre-pass labelled
                     self.exchanged = exchanged[self._run_frame]
@@ -823,74 +890,39 @@ class Tracker:
             t0 = time.perf_counter()
             self.estimate_shape(*self._shape_frames(depths, keypoints2d, confidence, n))
             self.compile_s += time.perf_counter() - t0
-        kp3 = np.full((T, 18, 3), np.nan)
-        params = np.full((T, 43), np.nan)
-        delta = np.full(T, np.nan)
-        status = np.full(T, NO_OBSERVATION, np.int8)
-        conf_out = np.zeros((T, 18), np.float32)
-        lm3 = np.zeros((T, 18, 3))
-        has_d = np.zeros((T, 18), bool)
-        det = np.zeros((T, 18), bool)
-        person = np.full(T, -1, np.int64)
-        exchanged = None if self.sides is None else np.zeros((T, len(self.sides.groups)), bool)
-        num_people = np.zeros(T, np.int64)
-        kp2 = np.zeros((T, 18, 2), np.float32)
-        lm_conf = np.zeros((T, 18), np.float32)
+        G = 0 if self.sides is None else len(self.sides.groups)
+        out = _RunOutputs.empty(T, G)
         self._reset_motion()
         self._found_floor = None
         # Body shape from depth: the best-observed tracked frame of each of F equal stretches
         # of the recording (its depth as fitted: other people removed) is kept for refine_shape.
         n_keep = 0 if self.refine is None else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
+        spans: dict[int, int] = {}
+        self.side_spans = []
+        arbitrating = self.sides is not None and self.mode == "offline" and self.sides.arbitrate
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
             self.sides_s = time.perf_counter() - t0
+            if self.sides.arbitrate:
+                spans = dict(arbitration_spans(self._two_sided[1], self.sides.arbitrate_after))
+        frame = partial(self._run_frame_into, out, kept, n_keep, depths, keypoints2d, confidence)
         try:
-            for t in range(T):
-                self._run_frame = t
-                est, st = self.update(depths[t], keypoints2d[t], confidence[t])
-                if self.mode == "online" and self.lagged is not None and self.lag > 0:
-                    i, p_lag, k_lag = self.lagged
-                    params[i], kp3[i] = p_lag, k_lag
-                status[t] = st
-                person[t] = self._person
-                if exchanged is not None and self._person >= 0:
-                    exchanged[t] = self.exchanged
-                num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
-                if progress is not None:
-                    progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
-                if est is None:
-                    if self._state is not None:
-                        # The track lives but its person was not seen (nobody, or only other
-                        # people): hold the last pose, as for a frame without observation.
-                        params[t] = np.asarray(self._state.best)
-                        kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
+            t = 0
+            while t < T:
+                if t in spans:
+                    t = self._arbitrate_span(t, spans[t], out, kept, frame, progress)
                     continue
-                lm = est.landmarks
-                lm3[t], has_d[t], det[t], kp2[t], lm_conf[t] = (
-                    np.asarray(lm.points3d),
-                    np.asarray(lm.has_depth),
-                    np.asarray(lm.detected),
-                    np.asarray(lm.keypoints2d),
-                    np.asarray(lm.confidence),
-                )
-                if st == NO_OBSERVATION:
-                    prev = self._state.best if self._state is not None else None
-                    if prev is not None:
-                        params[t] = np.asarray(prev)
-                        kp3[t] = np.asarray(body.keypoints(self.shape, prev))
-                    continue
-                params[t] = np.asarray(est.params)
-                kp3[t] = np.asarray(est.keypoints3d)
-                delta[t] = float(est.delta)
-                conf_out[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
-                if n_keep and st == TRACKED:
-                    n3d, stretch = int(has_d[t].sum()), t * n_keep // T
-                    if n3d > kept.get(stretch, (-1,))[0]:
-                        kept[stretch] = (n3d, t, self._depth_fit)
+                self._labels = "detected" if arbitrating else None
+                frame(progress, t)
+                t += 1
         finally:
-            self._two_sided, self._run_frame = None, None
+            self._two_sided, self._run_frame, self._labels = None, None, None
+        kp3, params, delta, status, conf_out = out.kp3, out.params, out.delta, out.status, out.conf
+        lm3, has_d, det, kp2, lm_conf = out.lm3, out.has_d, out.det, out.kp2, out.lm_conf
+        person, num_people = out.person, out.num_people
+        exchanged = None if self.sides is None else out.exchanged
         if self._batched is not None:  # no more steps: the other sequences need not wait
             self._batched[0].leave(self._batched[1])
         per_frame = None
@@ -948,6 +980,107 @@ class Tracker:
             floor=self._found_floor,
             mode=self.mode,
         )
+
+    def _run_frame_into(
+        self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
+        progress, t: int,
+    ) -> None:
+        """:meth:`run`'s work for frame ``t``: the update, and its results into ``out`` (and
+        ``kept``, the candidate frames of the body-shape refinement)."""
+        self._run_frame = t
+        T = len(depths)
+        est, st = self.update(depths[t], keypoints2d[t], confidence[t])
+        if self.mode == "online" and self.lagged is not None and self.lag > 0:
+            i, p_lag, k_lag = self.lagged
+            out.params[i], out.kp3[i] = p_lag, k_lag
+        out.status[t] = st
+        out.person[t] = self._person
+        if self.sides is not None and self._person >= 0:
+            out.exchanged[t] = self.exchanged
+        out.num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
+        if progress is not None:
+            progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
+        if est is None:
+            if self._state is not None:
+                # The track lives but its person was not seen (nobody, or only other
+                # people): hold the last pose, as for a frame without observation.
+                out.params[t] = np.asarray(self._state.best)
+                out.kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
+            return
+        lm = est.landmarks
+        out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = (
+            np.asarray(lm.points3d),
+            np.asarray(lm.has_depth),
+            np.asarray(lm.detected),
+            np.asarray(lm.keypoints2d),
+            np.asarray(lm.confidence),
+        )
+        if st == NO_OBSERVATION:
+            prev = self._state.best if self._state is not None else None
+            if prev is not None:
+                out.params[t] = np.asarray(prev)
+                out.kp3[t] = np.asarray(body.keypoints(self.shape, prev))
+            return
+        out.params[t] = np.asarray(est.params)
+        out.kp3[t] = np.asarray(est.keypoints3d)
+        out.delta[t] = float(est.delta)
+        out.conf[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
+        if n_keep and st == TRACKED:
+            n3d, stretch = int(out.has_d[t].sum()), t * n_keep // T
+            if n3d > kept.get(stretch, (-1,))[0]:
+                kept[stretch] = (n3d, t, self._depth_fit)
+
+    def _arbitrate_span(
+        self, start: int, stop: int, out: _RunOutputs, kept: dict, frame, progress
+    ) -> int:
+        """Track frames ``[start, stop)`` twice from the same state, with the two-sided
+        labelling and with the labels as detected, and keep the reading whose poses score the
+        lower Delta (:func:`prefer_exchanged`). Returns ``stop``."""
+        before = self._snapshot()
+        saved, kept_before = out.copy_span(start, stop), dict(kept)
+        self._labels = "two-sided"
+        for u in range(start, stop):
+            frame(None, u)
+        delta_ex = out.delta[start:stop].copy()
+        after_ex, span_ex, kept_ex = self._snapshot(), out.copy_span(start, stop), dict(kept)
+        self._restore(before)
+        out.put_span(start, saved)
+        kept.clear()
+        kept.update(kept_before)
+        self._labels = "detected"
+        for u in range(start, stop):
+            frame(progress, u)
+        delta_as = out.delta[start:stop]
+        chosen = prefer_exchanged(delta_as, delta_ex, self.sides.arbitrate_margin)
+        self.side_spans.append(
+            (start, stop, float(np.nansum(delta_as)), float(np.nansum(delta_ex)), chosen)
+        )
+        if chosen:
+            self._restore(after_ex)
+            out.put_span(start, span_ex)
+            kept.clear()
+            kept.update(kept_ex)
+        return stop
+
+    def _snapshot(self) -> tuple:
+        """The host-side state :meth:`update` changes in offline :meth:`run` (device arrays
+        are immutable and shared; the follower and the labeller are copied)."""
+        keep = {id(self.intrinsics): self.intrinsics}
+        return (
+            self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
+            self._key, self._person, self.exchanged, self._frames_seen, self._depth_fit,
+            copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
+        )  # fmt: skip
+
+    def _restore(self, snap: tuple) -> None:
+        (
+            self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
+            self._key, self._person, self.exchanged, self._frames_seen, self._depth_fit,
+            follower, labeller,
+        ) = snap  # fmt: skip
+        keep = {id(self.intrinsics): self.intrinsics}
+        self._follower = copy.deepcopy(follower, keep)
+        self._labeller = copy.deepcopy(labeller)
 
     def _refine_settings(self) -> ShapeFitSettings:
         """:attr:`refine`, its image no larger than the sensor's."""
@@ -1053,15 +1186,15 @@ def track(
     lag: int = 0,
     motion: SmoothSettings = SmoothSettings(),
     fps: float = 30.0,
-    sides: SideSettings | None = None,
+    sides: SideSettings | str | None = "auto",
     refine: ShapeFitSettings | str | None = "auto",
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
     motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
     "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior; ``sides``
-    undoes the detector's left/right swaps (:class:`SideSettings`, read from both directions
-    offline; ``None``, the default: off)."""
+    undoes the detector's left/right swaps (:class:`SideSettings`; ``"auto"``: offline, read
+    from both directions and arbitrated by the depth; ``None``: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides, refine=refine,

@@ -211,7 +211,10 @@ def test_summary_and_printout(cli, poses):
     assert f"wrote {cli.out}/" in cli.stdout
     assert "note: intrinsics: plain layout, 320x240" in cli.stderr
     assert "note: keypoints: COCO-18" in cli.stderr
-    assert summary["inputs"]["fix_sides"] is False and summary["sides_exchanged"] is None
+    # Left/right relabelling runs offline by default; the clean clip needs none kept.
+    assert summary["inputs"]["fix_sides"] is True and set(summary["sides_exchanged"]) == {
+        "arms", "legs"
+    }
     # Offline (the default) refines the body shape against the depth of a few frames.
     refit = summary["shape_refinement"]
     assert summary["inputs"]["refine_shape"] is True and refit["refined"] is True
@@ -221,7 +224,8 @@ def test_summary_and_printout(cli, poses):
 
 
 def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
-    # Arms exchanged by the detector in frames 4-11: undone with the flag, kept by default.
+    # Arms exchanged by the detector in frames 4-11: undone by default (offline, the depth
+    # agreeing) and with the flag, kept with --no-fix-sides.
     src = rec / "keypoints"
     swapped = tmp_path / "keypoints"
     shutil.copytree(src, swapped)
@@ -234,7 +238,9 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
         doc["people"][0]["pose_keypoints_2d"] = [v for k in kp for v in k]
         f.write_text(json.dumps(doc))
     runs = {}
-    for name, extra in (("fix", ("--fix-sides", "--no-refine-shape")), ("default", ())):
+    for name, extra in (
+        ("fix", ("--fix-sides", "--no-refine-shape")), ("default", ()), ("off", ("--no-fix-sides",))
+    ):
         args = track_args(rec, tmp_path / name, "--no-video", *extra)
         args[args.index("--keypoints") + 1] = swapped
         code, stdout, stderr = run_cli(*args)
@@ -245,6 +251,9 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
     assert "left/right swaps of the detector undone (frames): arms" in stdout
     assert summary["shape_refinement"]["refined"] is False and "body shape" not in stdout
     summary, stdout = runs["default"]
+    assert summary["inputs"]["fix_sides"] is True and summary["sides_exchanged"]["arms"] >= 6
+    summary, stdout = runs["off"]
+    assert summary["inputs"]["fix_sides"] is False
     assert summary["sides_exchanged"] is None and "undone" not in stdout
 
 

@@ -154,3 +154,29 @@ def test_two_sided_labelling_skips_frames_without_the_person_and_checks_its_marg
     assert not pt.two_sided_exchanged(frames, FX, pt.SideSettings(two_sided_margin=5.0)).any()
     with pytest.raises(ValueError, match="two_sided_margin"):
         pt.SideSettings(two_sided_margin=-0.1)
+
+
+def test_arbitration_spans_cover_each_exchange_and_the_frames_after_it():
+    ex = np.zeros((30, 2), bool)
+    ex[3:5, 0] = True  # arms, then legs 2 frames after the arms' span ends: one span
+    ex[10:12, 1] = True
+    ex[20, 0] = True  # its span is cut at the end of the recording... not here: 20 + 1 + 5
+    ex[28, 1] = True  # ... here
+    assert pt.arbitration_spans(ex, 5) == [(3, 17), (20, 26), (28, 30)]
+    assert pt.arbitration_spans(ex, 0) == [(3, 5), (10, 12), (20, 21), (28, 29)]
+    assert pt.arbitration_spans(np.zeros((7, 2), bool), 5) == []
+
+
+def test_prefer_exchanged_needs_a_lower_delta_on_the_same_frames():
+    a = np.array([0.30, 0.40, np.nan, 0.35])
+    assert pt.prefer_exchanged(a, a - 0.05, 0.0)
+    assert not pt.prefer_exchanged(a, a - 0.05, 0.2)  # 0.15 lower: not by the margin
+    assert not pt.prefer_exchanged(a, a, 0.0)  # a tie keeps the detections' labels
+    lost = a - 0.1
+    lost[3] = np.nan  # the exchanged reading lost a frame the other estimated
+    assert not pt.prefer_exchanged(a, lost, 0.0)
+    assert not pt.prefer_exchanged(np.full(3, np.nan), np.full(3, np.nan), 0.0)
+    with pytest.raises(ValueError, match="arbitrate_after"):
+        pt.SideSettings(arbitrate_after=-1)
+    with pytest.raises(ValueError, match="arbitrate"):
+        pt.SideSettings(arbitrate=1)

@@ -213,8 +213,13 @@ def modes(clip):
 def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     off, per = modes["offline"], modes["per-frame"]
     assert off.mode == "offline" and per.per_frame_keypoints3d is None
-    assert per.exchanged is None and off.exchanged is None  # relabelling is opt-in
-    np.testing.assert_array_equal(off.per_frame_keypoints3d, per.keypoints3d)
+    # Left/right relabelling runs offline by default (arbitrated by the depth), not per-frame.
+    assert per.exchanged is None and off.exchanged is not None
+    if not off.exchanged.any():  # nothing exchanged: the per-frame pass is the paper's tracker
+        np.testing.assert_array_equal(off.per_frame_keypoints3d, per.keypoints3d)
+    else:
+        first = int(np.flatnonzero(off.exchanged.any(axis=1))[0])
+        np.testing.assert_array_equal(off.per_frame_keypoints3d[:first], per.keypoints3d[:first])
     gt = clip.joints3d
     assert pt.acceleration_error(off.keypoints3d, gt) < 0.5 * pt.acceleration_error(
         per.keypoints3d, gt
@@ -307,8 +312,8 @@ def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes)
         kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
         conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
     args = (clip.depth, kp, conf, clip.intrinsics)
-    fixed = pt.track(*args, sides=pt.SideSettings())  # offline: read from both directions
-    raw = pt.track(*args)
+    fixed = pt.track(*args)  # offline default: both directions, arbitrated by the depth
+    raw = pt.track(*args, sides=None)
     assert raw.exchanged is None
     seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
     assert fixed.exchanged[sw[seen], 0].mean() > 0.9
@@ -321,3 +326,35 @@ def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes)
     d_raw = pt.accuracy(raw.keypoints3d, gt).mean_mm
     print(f"D with relabelling {d_fixed:.1f} mm, without {d_raw:.1f} mm")
     assert d_fixed <= d_raw + 1.0
+
+
+def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, monkeypatch):
+    """Offline, each stretch the two-sided labelling reads exchanged is tracked both ways and
+    kept by Delta. Here the pre-pass is made to misread correct arm labels in frames 10-19
+    (what 2D continuity does on occluded side views): arbitrated, the depth refuses it and
+    the track is the one without relabelling, bit for bit; taken as read, it costs accuracy."""
+    T = len(clip.depth)
+    wrong = np.zeros((T, 2), bool)
+    wrong[10:20, 0] = True
+
+    def misread(self, depths, keypoints2d, confidence):
+        return np.zeros(T, np.int64), wrong
+
+    monkeypatch.setattr(pt.Tracker, "_two_sided_labels", misread)
+    args = (clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics)
+    tr = pt.Tracker(clip.intrinsics, refine=None)
+    judged = tr.run(*args[:3])
+    assert [s[:2] for s in tr.side_spans] == [(10, 25)]
+    start, stop, delta_as, delta_ex, kept = tr.side_spans[0]
+    assert not kept and delta_ex > delta_as, tr.side_spans
+    assert not judged.exchanged.any()
+    plain = pt.track(*args, refine=None, sides=None)
+    np.testing.assert_array_equal(judged.per_frame_keypoints3d, plain.per_frame_keypoints3d)
+    np.testing.assert_array_equal(judged.keypoints3d, plain.keypoints3d)
+    taken = pt.track(*args, refine=None, sides=pt.SideSettings(arbitrate=False))
+    assert taken.exchanged[10:20, 0].all()
+    gt = clip.joints3d
+    d_taken = pt.accuracy(taken.per_frame_keypoints3d[10:25], gt[10:25]).mean_mm
+    d_judged = pt.accuracy(judged.per_frame_keypoints3d[10:25], gt[10:25]).mean_mm
+    print(f"frames 10-24: D {d_judged:.1f} mm arbitrated, {d_taken:.1f} taken as read")
+    assert d_judged < d_taken - 10.0

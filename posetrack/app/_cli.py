@@ -201,7 +201,7 @@ def _track(args) -> int:
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=args.online or 0, fps=30.0 if fps is None else fps,
-        sides=SideSettings() if args.fix_sides else None,
+        sides={None: "auto", True: SideSettings(), False: None}[args.fix_sides],
         refine=_refine(args),
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
@@ -625,11 +625,17 @@ def build_parser() -> argparse.ArgumentParser:
         "else 30)",
     )  # fmt: skip
     _add_mode_options(t)
-    t.add_argument(
-        "--fix-sides", action="store_true",
-        help="undo the detector's left/right swaps of the arms and legs before fitting "
-        "(offline read from both directions; helps with frequent swaps, can misread occluded "
-        "side views; see the README)",
+    sides = t.add_mutually_exclusive_group()
+    sides.add_argument(
+        "--fix-sides", dest="fix_sides", action="store_const", const=True, default=None,
+        help="undo the detector's left/right swaps of the arms and legs before fitting. "
+        "Default: on offline (read from both directions, each exchange kept only where the "
+        "depth agrees), off with --online/--per-frame; with --online this turns on the "
+        "causal reading (taken as read; see the README)",
+    )  # fmt: skip
+    sides.add_argument(
+        "--no-fix-sides", dest="fix_sides", action="store_const", const=False,
+        help="take the detector's left/right labels as they come",
     )  # fmt: skip
     t.add_argument(
         "--frame", choices=("camera", "floor"), default="camera",
