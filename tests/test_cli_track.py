@@ -252,6 +252,9 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
     assert summary["shape_refinement"]["refined"] is False and "body shape" not in stdout
     summary, stdout = runs["default"]
     assert summary["inputs"]["fix_sides"] is True and summary["sides_exchanged"]["arms"] >= 6
+    judged = summary["sides_arbitrated"]
+    assert any(s["kept"] and s["start"] <= 4 < s["stop"] for s in judged), judged
+    assert all(s["kept"] == (s["delta_exchanged"] < s["delta_detected"]) for s in judged)
     summary, stdout = runs["off"]
     assert summary["inputs"]["fix_sides"] is False
     assert summary["sides_exchanged"] is None and "undone" not in stdout

@@ -241,6 +241,11 @@ def _track(args) -> int:
         "frame_timestamps": None if rec.timestamps is None else rec.timestamps.tolist(),
         "person": person,
         "sides_exchanged": undone,
+        # Offline: each stretch the two-sided labelling read exchanged, tracked both ways.
+        "sides_arbitrated": [
+            {"start": a, "stop": b, "delta_detected": da, "delta_exchanged": dx, "kept": k}
+            for a, b, da, dx, k in tracker.side_spans
+        ],
         "shape_refinement": _shape_summary(tracker),
         "timing": {
             "load_s": t_loaded - t_start,
