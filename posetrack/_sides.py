@@ -331,7 +331,7 @@ def arbitration_spans(exchanged: np.ndarray, after: int) -> list[tuple[int, int]
     Returns:
         ``[(start, stop), ...]``, increasing, ``stop`` exclusive.
     """
-    any_ex = np.asarray(exchanged, bool).reshape(len(exchanged), -1).any(axis=1)
+    any_ex = np.asarray(exchanged, bool).any(axis=1)
     T = len(any_ex)
     spans: list[tuple[int, int]] = []
     edges = np.flatnonzero(np.diff(np.concatenate([[0], any_ex.astype(np.int8), [0]])))

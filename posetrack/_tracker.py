@@ -530,10 +530,9 @@ class Tracker:
         # being tracked. None outside run() and online.
         self._two_sided: tuple[np.ndarray, np.ndarray] | None = None
         self._run_frame: int | None = None
-        # Offline with arbitration (SideSettings.arbitrate): which labels the frame being
-        # tracked takes, "detected" or "two-sided"; None: the pre-pass's, else the forward
-        # pass's.
-        self._labels: str | None = None
+        # Offline with arbitration (SideSettings.arbitrate): True while a stretch is tracked
+        # with the labels as detected.
+        self._as_detected = False
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -671,16 +670,9 @@ class Tracker:
             kp, conf, self.exchanged = self._labeller.update(
                 kp, conf, cands.points3d[p], cands.has_depth[p]
             )
-            if self._labels is not None and (
-                self._labels == "detected" or self._two_sided[0][self._run_frame] != p
-            ):
-                kp, conf = raw
-                self.exchanged = np.zeros_like(self.exchanged)
-            elif self._two_sided is not None and self._run_frame is not None:
-                persons, exchanged = self._two_sided
-                if persons[self._run_frame] == p:  # the detection the pre-pass labelled
-                    self.exchanged = exchanged[self._run_frame]
-                    kp, conf = self._labeller.relabel(*raw, self.exchanged)
+            if self._two_sided is not None and self._run_frame is not None:
+                self.exchanged = self._offline_exchanged(p, self.exchanged)
+                kp, conf = self._labeller.relabel(*raw, self.exchanged)
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]
             z_ref = float(np.median(cands.points3d[p, own, 2])) if own.any() else None
@@ -688,6 +680,15 @@ class Tracker:
             if mask.any():
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
+
+    def _offline_exchanged(self, p: int, forward: np.ndarray) -> np.ndarray:
+        """In offline :meth:`run`, the labelling of detection ``p`` in the frame being tracked:
+        the pre-pass's where it labelled that detection (unless a stretch is being tracked as
+        detected); elsewhere as detected when arbitrating, else the forward pass's."""
+        persons, exchanged = self._two_sided
+        if persons[self._run_frame] == p and not self._as_detected:
+            return exchanged[self._run_frame]
+        return np.zeros_like(forward) if self.sides.arbitrate else forward
 
     @property
     def initialized(self) -> bool:
@@ -900,7 +901,6 @@ class Tracker:
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
         self.side_spans = []
-        arbitrating = self.sides is not None and self.mode == "offline" and self.sides.arbitrate
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
@@ -914,11 +914,10 @@ class Tracker:
                 if t in spans:
                     t = self._arbitrate_span(t, spans[t], out, kept, frame, progress)
                     continue
-                self._labels = "detected" if arbitrating else None
                 frame(progress, t)
                 t += 1
         finally:
-            self._two_sided, self._run_frame, self._labels = None, None, None
+            self._two_sided, self._run_frame, self._as_detected = None, None, False
         kp3, params, delta, status, conf_out = out.kp3, out.params, out.delta, out.status, out.conf
         lm3, has_d, det, kp2, lm_conf = out.lm3, out.has_d, out.det, out.kp2, out.lm_conf
         person, num_people = out.person, out.num_people
@@ -1038,7 +1037,6 @@ class Tracker:
         lower Delta (:func:`prefer_exchanged`). Returns ``stop``."""
         before = self._snapshot()
         saved, kept_before = out.copy_span(start, stop), dict(kept)
-        self._labels = "two-sided"
         for u in range(start, stop):
             frame(None, u)
         delta_ex = out.delta[start:stop].copy()
@@ -1047,9 +1045,10 @@ class Tracker:
         out.put_span(start, saved)
         kept.clear()
         kept.update(kept_before)
-        self._labels = "detected"
+        self._as_detected = True
         for u in range(start, stop):
             frame(progress, u)
+        self._as_detected = False
         delta_as = out.delta[start:stop]
         chosen = prefer_exchanged(delta_as, delta_ex, self.sides.arbitrate_margin)
         self.side_spans.append(
@@ -1063,20 +1062,21 @@ class Tracker:
         return stop
 
     def _snapshot(self) -> tuple:
-        """The host-side state :meth:`update` changes in offline :meth:`run` (device arrays
-        are immutable and shared; the follower and the labeller are copied)."""
+        """The host-side state :meth:`update` carries from frame to frame in offline
+        :meth:`run` (device arrays are immutable and shared; the follower and the labeller are
+        copied). What each frame sets afresh (the person index, its labelling, the depth
+        fitted) is not kept."""
         keep = {id(self.intrinsics): self.intrinsics}
         return (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
-            self._key, self._person, self.exchanged, self._frames_seen, self._depth_fit,
+            self._key, self._frames_seen,
             copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
         )  # fmt: skip
 
     def _restore(self, snap: tuple) -> None:
         (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
-            self._key, self._person, self.exchanged, self._frames_seen, self._depth_fit,
-            follower, labeller,
+            self._key, self._frames_seen, follower, labeller,
         ) = snap  # fmt: skip
         keep = {id(self.intrinsics): self.intrinsics}
         self._follower = copy.deepcopy(follower, keep)
