@@ -103,6 +103,10 @@ class ShapeFitSettings:
     frames: int = 10
     """Frames :meth:`~posetrack.Tracker.run` refines on (``refine=``): the best-observed
     tracked frame of each of ``frames`` equal stretches of the recording."""
+    online_after: int = 60
+    """``mode="online"`` (causal): the refinement runs once, when this many frames have been
+    tracked, on the best-observed frame of each of ``frames`` equal stretches of them; the
+    frames after it are tracked with the refined shape."""
 
     @classmethod
     def tracking(cls) -> ShapeFitSettings:
@@ -121,6 +125,11 @@ class ShapeFitSettings:
             )
         if self.frames < 1:
             raise ValueError(f"ShapeFitSettings.frames must be >= 1, got {self.frames}")
+        if self.online_after < self.frames:
+            raise ValueError(
+                f"ShapeFitSettings.online_after must be >= frames ({self.frames}), got "
+                f"{self.online_after}"
+            )
         if self.steps < 1:
             raise ValueError(f"ShapeFitSettings.steps must be >= 1, got {self.steps}")
         for name in (

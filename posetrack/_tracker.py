@@ -331,11 +331,14 @@ class Tracker:
     or frame by frame with :meth:`update`. The body dimensions are estimated from the first
     ``config.shape_frames`` frames of :meth:`run` unless ``shape`` is given.
 
-    **Body shape from depth** (``mode="offline"``; ``refine="auto"``, the default, unless
-    ``shape`` is given): after the forward pass, :func:`refine_shape` refits the body
-    dimensions and the poses of 8 tracked frames spread over the recording against their depth
-    (:meth:`ShapeFitSettings.tracking`), and the motion model then fits every frame with the
-    refined shape (the per-frame poses' keypoints as its anchor). Where a joint sits inside the
+    **Body shape from depth** (``refine="auto"``, the default offline and online, unless
+    ``shape`` is given): :func:`refine_shape` refits the body dimensions and the poses of 8
+    tracked frames against their depth (:meth:`ShapeFitSettings.tracking`). Offline it runs
+    after the forward pass on frames spread over the recording, and the motion model then fits
+    every frame with the refined shape (the per-frame poses' keypoints as its anchor). Online
+    it runs once, causally, when ``ShapeFitSettings.online_after`` (60) frames have been
+    tracked, on frames among those, and the frames after are tracked with the refined shape
+    (that :meth:`update` takes a few seconds longer on a CPU). Where a joint sits inside the
     body, the shoulders above all, then follows the person rather than the default adult.
     ``refine=None`` turns it off; :attr:`refine_report` says what it changed.
 
@@ -404,16 +407,17 @@ class Tracker:
             )
         self.sides: SideSettings | None = sides
         if isinstance(refine, str) and refine == "auto":
-            auto = mode == "offline" and shape is None
+            auto = mode != "per-frame" and shape is None
             refine = ShapeFitSettings.tracking() if auto else None
         if refine is not None and not isinstance(refine, ShapeFitSettings):
             raise TypeError(
                 f"Tracker: refine must be 'auto', posetrack.ShapeFitSettings or None, got "
                 f"{refine!r}"
             )
-        if refine is not None and mode != "offline":
+        if refine is not None and mode == "per-frame":
             raise ValueError(
-                f"Tracker: refine (body shape from depth) needs mode='offline', got mode={mode!r}"
+                "Tracker: refine (body shape from depth) needs mode='offline' or 'online', got "
+                "mode='per-frame'"
             )
         self.refine: ShapeFitSettings | None = refine
         self.refine_report: dict | None = None
@@ -482,6 +486,11 @@ class Tracker:
         self._window_frames = np.full(self.motion.online_window, -1, np.int64)
         self._window_valid = np.zeros(self.motion.online_window, bool)
         self._frames_seen = 0
+        # Online body-shape refinement (causal): tracked frames counted so far, and per
+        # stretch of them the best-observed one (3D landmarks, params, depth, kp2, confidence).
+        self._online_refine_pending = self.mode == "online" and self.refine is not None
+        self._online_tracked = 0
+        self._online_kept: dict[int, tuple] = {}
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
         frames before the newest, smoothed (``None`` until there is one)."""
@@ -579,15 +588,15 @@ class Tracker:
                 self.motion, shape, intr, f32((W, 43)), window_lm,
                 jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
             )))  # fmt: skip
-            if self.refine is not None and not self.refine.crop:
-                later.extend(refine_programs(
-                    self._refine_settings(), self.config, shape, intr, self.refine.frames
-                ))  # fmt: skip
         elif self.mode == "online":
             later.append((online_update_program, (
                 self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
                 f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
             )))  # fmt: skip
+        if self.refine is not None and not self.refine.crop:
+            later.extend(refine_programs(
+                self._refine_settings(), self.config, shape, intr, self.refine.frames
+            ))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
         if self._batched is not None:  # track_many: the batcher compiles the batched step
             self._batched[0].prepare(step_args)
@@ -804,12 +813,48 @@ class Tracker:
         observed = est is not None and st != NO_OBSERVATION
         conf = keypoint_confidence(est) * (0.5 if st == LOST else 1.0) if observed else np.zeros(18)
         newest = self._online(est if observed else None, conf)
+        if self._online_refine_pending and st == TRACKED:
+            self._online_refine_frame(est)
         if newest is not None and observed and self.lag == 0:
             p, k = newest
             est = eqx.tree_at(
                 lambda e: (e.params, e.keypoints3d), est, (jnp.asarray(p), jnp.asarray(k))
             )
         return est, st
+
+    def _online_refine_frame(self, est: FrameEstimate) -> None:
+        """Online body shape from depth, causally: keep the best-observed tracked frame of
+        each of ``refine.frames`` stretches of the first ``refine.online_after`` tracked
+        frames; when they are all seen, refine :attr:`shape` on them once (the next frames are
+        tracked with it)."""
+        R = self.refine
+        lm = est.landmarks
+        n3d = int(np.asarray(lm.has_depth).sum())
+        stretch = self._online_tracked * R.frames // R.online_after
+        if n3d > self._online_kept.get(stretch, (-1,))[0]:
+            self._online_kept[stretch] = (
+                n3d, np.asarray(est.params), self._depth_fit, np.asarray(lm.keypoints2d),
+                np.asarray(lm.confidence), self._frames_seen - 1,
+            )  # fmt: skip
+        self._online_tracked += 1
+        if self._online_tracked < R.online_after:
+            return
+        self._online_refine_pending = False
+        kept = [self._online_kept[k] for k in sorted(self._online_kept)]
+        self._online_kept = {}
+        if len(kept) < _MIN_REFINE_FRAMES:
+            return
+        t0 = time.perf_counter()
+        refined, report = refine_shape(
+            self.shape, np.stack([k[1] for k in kept]), np.stack([k[2] for k in kept]),
+            np.stack([k[3] for k in kept]), np.stack([k[4] for k in kept]), self.intrinsics,
+            settings=self._refine_settings(), config=self.config,
+            floor=np.asarray(self._floor), pad_to=R.frames,
+        )  # fmt: skip
+        report["frames_used"] = np.asarray([k[5] for k in kept])
+        self.refine_report = report
+        self.refine_s = time.perf_counter() - t0
+        self.shape = refined
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""
@@ -897,7 +942,7 @@ class Tracker:
         self._found_floor = None
         # Body shape from depth: the best-observed tracked frame of each of F equal stretches
         # of the recording (its depth as fitted: other people removed) is kept for refine_shape.
-        n_keep = 0 if self.refine is None else min(self.refine.frames, T)
+        n_keep = 0 if self.refine is None or self.mode != "offline" else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
         self.side_spans = []

@@ -5,6 +5,8 @@ per-frame estimates carry independent noise; the solver's block elimination agai
 solve; the modes against each other on one generated clip.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -210,6 +212,32 @@ def modes(clip):
     }
 
 
+def test_online_refines_the_body_shape_causally(clip, modes):
+    """Online, the body shape is refined once, after ``online_after`` tracked frames, on
+    frames already seen: every frame up to then is what the tracker gives without the
+    refinement (nothing from the future), the frames after use the refined shape."""
+    args = (clip.depth, clip.keypoints2d, clip.confidence)
+    # 8 frames (the program the offline runs above compiled), after 16 tracked frames.
+    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=16)
+    tr = pt.Tracker(clip.intrinsics, mode="online", refine=settings)
+    res = tr.run(*args)
+    plain = pt.track(*args, clip.intrinsics, mode="online", refine=None)
+    used = tr.refine_report["frames_used"]
+    assert len(used) == 8 and used.max() < 16 and tr.refine_s > 0
+    tracked = np.flatnonzero(res.status == 0)
+    at = int(tracked[15])  # the 16th tracked frame: the refinement ran after its update
+    np.testing.assert_array_equal(res.keypoints3d[: at + 1], plain.keypoints3d[: at + 1])
+    assert not np.array_equal(res.keypoints3d[at + 1 :], plain.keypoints3d[at + 1 :])
+    before = plain.shape.to_dict()
+    changed = [k for k, v in res.shape.to_dict().items() if abs(v - before[k]) > 1e-4]
+    assert len(changed) >= 5, changed
+    # The refinement the offline mode runs on frames spread over the whole clip and this one
+    # start from the same shape and end near each other (the same person).
+    off = modes["offline"].shape.to_dict()
+    for k in ("torso", "shoulder_width", "upper_arm", "thigh"):
+        assert abs(res.shape.to_dict()[k] - off[k]) < 0.15 * off[k], k
+
+
 def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     off, per = modes["offline"], modes["per-frame"]
     assert off.mode == "offline" and per.per_frame_keypoints3d is None
@@ -259,15 +287,17 @@ def test_prepare_builds_the_refinement_programs_the_run_uses(clip, modes):
     assert [p._cache_size() for p in progs] == before
 
 
-def test_shape_refinement_is_offline_only_and_checked(clip):
+def test_shape_refinement_is_offline_and_online_and_checked(clip):
     tr = pt.Tracker(clip.intrinsics)
     assert tr.refine == pt.ShapeFitSettings.tracking()
-    assert pt.Tracker(clip.intrinsics, mode="online").refine is None
+    assert pt.Tracker(clip.intrinsics, mode="online").refine == pt.ShapeFitSettings.tracking()
     assert pt.Tracker(clip.intrinsics, mode="per-frame").refine is None
     # A shape given by the caller is kept as given.
     assert pt.Tracker(clip.intrinsics, shape=pt.BodyShape.default()).refine is None
-    with pytest.raises(ValueError, match="offline"):
-        pt.Tracker(clip.intrinsics, mode="online", refine=pt.ShapeFitSettings())
+    with pytest.raises(ValueError, match="per-frame"):
+        pt.Tracker(clip.intrinsics, mode="per-frame", refine=pt.ShapeFitSettings())
+    with pytest.raises(ValueError, match="online_after"):
+        pt.ShapeFitSettings(frames=8, online_after=4)
     with pytest.raises(TypeError, match="refine"):
         pt.Tracker(clip.intrinsics, refine="yes")
     with pytest.raises(ValueError, match="frames"):

@@ -442,9 +442,9 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     p.add_argument(
         "--no-refine-shape", action="store_true",
-        help="offline: keep the body dimensions measured between lifted keypoints instead of "
-        "refining them against the depth of 8 frames (saves about 3 s, costs accuracy; see "
-        "the README)",
+        help="keep the body dimensions measured between lifted keypoints instead of "
+        "refining them against the depth of 8 frames (offline: after tracking; online: once, "
+        "after 60 tracked frames; saves about 3-4 s, costs accuracy; see the README)",
     )  # fmt: skip
 
 
