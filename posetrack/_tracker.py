@@ -799,7 +799,9 @@ class Tracker:
         In ``mode="online"`` the motion model runs after the step: with ``lag=0`` the
         estimate's ``params`` and ``keypoints3d`` are the smoothed pose of this frame; with
         ``lag=L`` they are this frame's per-frame pose and :attr:`lagged` holds the smoothed
-        pose of the frame L frames back.
+        pose of the frame L frames back. With ``refine`` (online's default), the call that
+        completes ``refine.online_after`` tracked frames also refines the body shape (a few
+        seconds on a CPU, once; :attr:`refine_s`).
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
