@@ -179,6 +179,14 @@ class TrackResult:
         return np.where(estimated, np.where(seen, 2, 1), 0).astype(np.int8)
 
 
+def _keep_best_observed(kept: dict, stretch: int, n3d: int, entry) -> None:
+    """The body-shape refinement's frame choice: per stretch of frames, the tracked frame with
+    the most 3D landmarks. ``kept[stretch] = (n3d, *entry())`` when ``n3d`` beats the kept
+    one (``entry`` is only called then)."""
+    if n3d > kept.get(stretch, (-1,))[0]:
+        kept[stretch] = (n3d, *entry())
+
+
 def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
     """Per-keypoint confidence in [0, 1] of one frame's estimate.
 
@@ -831,32 +839,22 @@ class Tracker:
         tracked with it)."""
         R = self.refine
         lm = est.landmarks
-        n3d = int(np.asarray(lm.has_depth).sum())
-        stretch = self._online_tracked * R.frames // R.online_after
-        if n3d > self._online_kept.get(stretch, (-1,))[0]:
-            self._online_kept[stretch] = (
-                n3d, np.asarray(est.params), self._depth_fit, np.asarray(lm.keypoints2d),
+        _keep_best_observed(
+            self._online_kept, self._online_tracked * R.frames // R.online_after,
+            int(np.asarray(lm.has_depth).sum()),
+            lambda: (
+                np.asarray(est.params), self._depth_fit, np.asarray(lm.keypoints2d),
                 np.asarray(lm.confidence), self._frames_seen - 1,
-            )  # fmt: skip
+            ),
+        )  # fmt: skip
         self._online_tracked += 1
         if self._online_tracked < R.online_after:
             return
         self._online_refine_pending = False
-        kept = [self._online_kept[k] for k in sorted(self._online_kept)]
+        kept = [self._online_kept[k][1:] for k in sorted(self._online_kept)]
         self._online_kept = {}
-        if len(kept) < _MIN_REFINE_FRAMES:
-            return
-        t0 = time.perf_counter()
-        refined, report = refine_shape(
-            self.shape, np.stack([k[1] for k in kept]), np.stack([k[2] for k in kept]),
-            np.stack([k[3] for k in kept]), np.stack([k[4] for k in kept]), self.intrinsics,
-            settings=self._refine_settings(), config=self.config,
-            floor=np.asarray(self._floor), pad_to=R.frames,
-        )  # fmt: skip
-        report["frames_used"] = np.asarray([k[5] for k in kept])
-        self.refine_report = report
-        self.refine_s = time.perf_counter() - t0
-        self.shape = refined
+        if len(kept) >= _MIN_REFINE_FRAMES:
+            self._refine_on(*(np.stack(column) for column in zip(*kept)))
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""
@@ -1072,9 +1070,9 @@ class Tracker:
         out.delta[t] = float(est.delta)
         out.conf[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
         if n_keep and st == TRACKED:
-            n3d, stretch = int(out.has_d[t].sum()), t * n_keep // T
-            if n3d > kept.get(stretch, (-1,))[0]:
-                kept[stretch] = (n3d, t, self._depth_fit)
+            _keep_best_observed(
+                kept, t * n_keep // T, int(out.has_d[t].sum()), lambda: (t, self._depth_fit)
+            )
 
     def _arbitrate_span(
         self, start: int, stop: int, out: _RunOutputs, kept: dict, frame, progress
@@ -1136,26 +1134,33 @@ class Tracker:
             self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H)
         )
 
-    def _refine_shape(self, kept, params, kp2, lm_conf, lm3, has_d) -> np.ndarray:
-        """Refine :attr:`shape` on the ``kept`` frames ``(n3d, t, depth metres)`` with
-        :func:`refine_shape` (their poses as the start). Returns the landmarks ``lm3`` moved
-        along their rays by the change of the surface offsets the new shape implies."""
-        t = np.asarray([k[1] for k in kept])
+    def _refine_on(self, params, depths, kp2, lm_conf, frames_used) -> None:
+        """Refine :attr:`shape` with :func:`refine_shape` on F frames (their poses as the
+        start; depth in metres as fitted) and record :attr:`refine_report` /
+        :attr:`refine_s`. Offline after the forward pass, online once (causally)."""
         t0 = time.perf_counter()
         refined, report = refine_shape(
-            self.shape, params[t], np.stack([k[2] for k in kept]), kp2[t], lm_conf[t],
-            self.intrinsics, settings=self._refine_settings(), config=self.config,
+            self.shape, params, depths, kp2, lm_conf, self.intrinsics,
+            settings=self._refine_settings(), config=self.config,
             floor=np.asarray(self._floor), pad_to=self.refine.frames,
         )  # fmt: skip
-        report["frames_used"] = t
+        report["frames_used"] = np.asarray(frames_used)
         self.refine_report = report
         self.refine_s = time.perf_counter() - t0
+        self.shape = refined
+
+    def _refine_shape(self, kept, params, kp2, lm_conf, lm3, has_d) -> np.ndarray:
+        """Offline: refine :attr:`shape` on the ``kept`` frames ``(n3d, t, depth metres)``
+        (:meth:`_refine_on`). Returns the landmarks ``lm3`` moved along their rays by the
+        change of the surface offsets the new shape implies."""
+        t = np.asarray([k[1] for k in kept])
+        before = self.shape
+        self._refine_on(params[t], np.stack([k[2] for k in kept]), kp2[t], lm_conf[t], t)
         if self.config.surface_offset:
-            moved = np.asarray(surface_offsets(refined) - surface_offsets(self.shape))
+            moved = np.asarray(surface_offsets(self.shape) - surface_offsets(before))
             norm = np.linalg.norm(lm3, axis=-1, keepdims=True)
             ray = np.divide(lm3, norm, out=np.zeros_like(lm3), where=norm > 0)
             lm3 = np.where(has_d[..., None], lm3 + moved[None, :, None] * ray, lm3)
-        self.shape = refined
         return lm3
 
     def _shape_frames(self, depths, keypoints2d, confidence, n: int) -> tuple[list, list, list]:
