@@ -16,9 +16,10 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
   taken as read, without the depth's arbitration (``SideSettings(arbitrate=False)``: "L/R
   unarbitrated", the opt-in of 2026-11-25); and with the shape measured between lifted
   keypoints only (``refine=None``, ``--no-refine-shape``: "kp shape");
-* MHT_h ``mode="online"`` with lag 0 and 4 (causal; the body shape refined once after 60
-  tracked frames, the default since 2026-11-25), lag 0 with the landmark-based shape
-  (``refine=None``: "kp shape", the online default before), and lag 0 + L/R (the forward
+* MHT_h ``mode="online"`` with lag 3 (``ONLINE_LAG``, the default of ``--online`` since
+  2026-11-25: each pose waits for the 3 frames after it) and lag 0 (no delay); causal, the
+  body shape refined once after 60 tracked frames; lag 3 with the landmark-based shape
+  (``refine=None``: "kp shape"), and lag 3 + L/R (the forward
   pass of the left/right labelling, opt-in online: ``--fix-sides``).
 
 Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
@@ -51,8 +52,8 @@ MOTIONS = ("walk", "box", "reach", "wave", "squat", "turn", "walk_across", "idle
 ROWS = (
     "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
     "MHT_h offline, no L/R", "MHT_h offline, L/R unarbitrated", "MHT_h offline, kp shape",
-    "MHT_h online L=0", "MHT_h online L=4", "MHT_h online L=0, kp shape",
-    "MHT_h online L=0 + L/R",
+    "MHT_h online L=3", "MHT_h online L=0", "MHT_h online L=3, kp shape",
+    "MHT_h online L=3 + L/R",
 )  # fmt: skip
 
 
@@ -72,10 +73,10 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
         *args, seq.intrinsics, sides=pt.SideSettings(arbitrate=False)
     ).keypoints3d
     out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
-    out["MHT_h online L=0, kp shape"] = pt.track(
+    out["MHT_h online L=3, kp shape"] = pt.track(
         *args, seq.intrinsics, mode="online", refine=None
     ).keypoints3d
-    out["MHT_h online L=0 + L/R"] = pt.track(
+    out["MHT_h online L=3 + L/R"] = pt.track(
         *args, seq.intrinsics, mode="online", sides=lr
     ).keypoints3d
     # Without relabelling: its per-frame pass is the paper's tracker on the detections as
@@ -96,10 +97,10 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
         "spans": len(lr_tr.side_spans),
         "spans_exchanged": int(sum(s[-1] for s in lr_tr.side_spans)),
     }  # fmt: skip
-    for lag in (0, 4):
+    for lag in (pt.ONLINE_LAG, 0):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
         out[f"MHT_h online L={lag}"] = on_tr.run(*args).keypoints3d
-        if lag == 0:
+        if lag == pt.ONLINE_LAG:
             cost["online_ms"] = float(np.median(on_tr.motion_times[1:]) * 1000)
             cost["online_step_ms"] = float(np.median(on_tr.step_times) * 1000)
             cost["online_refine_s"] = on_tr.refine_s

@@ -88,6 +88,7 @@ from ._step import TrackState as TrackState
 from ._step import tracker_step as tracker_step
 from ._tracker import LOST as LOST
 from ._tracker import MODES as MODES
+from ._tracker import ONLINE_LAG as ONLINE_LAG
 from ._tracker import NO_OBSERVATION as NO_OBSERVATION
 from ._tracker import JOINT_STATES as JOINT_STATES
 from ._tracker import STATUS_NAMES as STATUS_NAMES
@@ -132,7 +133,7 @@ __all__ = [
     # start-up: compiled programs kept on disk
     "enable_cache",
     # the motion model
-    "MODES", "SmoothSettings", "smooth_window",
+    "MODES", "ONLINE_LAG", "SmoothSettings", "smooth_window",
     # the detector's left/right swaps
     "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "prefer_exchanged",
     "two_sided_exchanged",

@@ -75,6 +75,14 @@ JOINT_STATES = JOINT_STATE_NAMES
 #: causal motion model with a fixed lag, or each frame on its own (the paper).
 MODES = ("offline", "online", "per-frame")
 
+#: The online mode's default lag, frames (100 ms at 30 fps): each pose is published once the
+#: ``ONLINE_LAG`` frames after it are seen. The smallest lag whose poses beat a Gaussian filter
+#: of the per-frame poses (sigma 2 frames, which sees the future) on D, clean and occluded,
+#: on the tuning seeds of both the standard and the wide generator (lag 2 missed the wide
+#: occluded clips by 0.7 mm; benchmarks/README.md). ``lag=0`` publishes each frame's pose at
+#: once (shakier).
+ONLINE_LAG = 3
+
 #: ``progress(done, total, postfix)``: called after each frame by :meth:`Tracker.run`.
 ProgressCallback = Callable[[int, int, str], None]
 
@@ -156,6 +164,9 @@ class TrackResult:
     mode: str = "per-frame"
     """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
     (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
+    lag: int = 0
+    """Online: the lag, frames (each pose used the frames up to ``lag`` after it); 0
+    otherwise."""
 
     @property
     def others_ignored(self) -> int:
@@ -336,7 +347,10 @@ class Tracker:
         result = tracker.run(depth_frames, keypoints2d, confidence)
         result.keypoints3d  # (T, 18, 3) metres
 
-    or frame by frame with :meth:`update`. The body dimensions are estimated from the first
+    or frame by frame with :meth:`update`. For a live camera use ``mode="online"``: each
+    frame's smoothed pose is published ``lag`` frames later as :attr:`lagged` (default
+    :data:`ONLINE_LAG`, 3 frames: 100 ms at 30 fps; ``lag=0`` publishes at once, shakier).
+    The body dimensions are estimated from the first
     ``config.shape_frames`` frames of :meth:`run` unless ``shape`` is given.
 
     **Body shape from depth** (``refine="auto"``, the default offline and online, unless
@@ -387,7 +401,7 @@ class Tracker:
         person: PersonRule = "auto",
         follow: FollowSettings | None = FollowSettings(),
         mode: str = "offline",
-        lag: int = 0,
+        lag: int = ONLINE_LAG,
         motion: SmoothSettings = SmoothSettings(),
         fps: float = 30.0,
         sides: SideSettings | str | None = "auto",
@@ -804,10 +818,11 @@ class Tracker:
     def update(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """Process one frame. Returns (estimate or None, status code).
 
-        In ``mode="online"`` the motion model runs after the step: with ``lag=0`` the
-        estimate's ``params`` and ``keypoints3d`` are the smoothed pose of this frame; with
-        ``lag=L`` they are this frame's per-frame pose and :attr:`lagged` holds the smoothed
-        pose of the frame L frames back. With ``refine`` (online's default), the call that
+        In ``mode="online"`` the motion model runs after the step. With ``lag=L`` (default
+        :data:`ONLINE_LAG`, 3) the estimate's ``params`` and ``keypoints3d`` are this frame's
+        per-frame pose and the published pose is :attr:`lagged`, the smoothed pose of the frame
+        L frames back; with ``lag=0`` the estimate's ``params`` and ``keypoints3d`` are the
+        smoothed pose of this frame itself (no delay, shakier). With ``refine`` (online's default), the call that
         completes ``refine.online_after`` tracked frames also refines the body shape (a few
         seconds on a CPU, once; :attr:`refine_s`).
 
@@ -1023,6 +1038,7 @@ class Tracker:
             exchanged=exchanged,
             floor=self._found_floor,
             mode=self.mode,
+            lag=self.lag if self.mode == "online" else 0,
         )
 
     def _run_frame_into(
@@ -1235,7 +1251,7 @@ def track(
     person: PersonRule = "auto",
     follow: FollowSettings | None = FollowSettings(),
     mode: str = "offline",
-    lag: int = 0,
+    lag: int = ONLINE_LAG,
     motion: SmoothSettings = SmoothSettings(),
     fps: float = 30.0,
     sides: SideSettings | str | None = "auto",
@@ -1244,7 +1260,8 @@ def track(
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
     motion model over the whole recording), "online" (causal, ``lag`` frames of delay) or
-    "per-frame" (the paper's tracker alone); ``fps`` scales the motion prior; ``sides``
+    "per-frame" (the paper's tracker alone); ``lag``: online, each pose waits for the ``lag``
+    frames after it (default :data:`ONLINE_LAG`, 3); ``fps`` scales the motion prior; ``sides``
     undoes the detector's left/right swaps (:class:`SideSettings`; ``"auto"``: offline, read
     from both directions and arbitrated by the depth; ``None``: off)."""
     return Tracker(

@@ -651,3 +651,23 @@ def test_keypoints_scale_rescales(half_size_rec, cli, poses, tmp_path):
     code, _, stderr = run_cli(*track_args(half_size_rec, tmp_path / "p", "--no-video",
                                           "--keypoints-scale", "1"))  # fmt: skip
     assert code == 0, stderr
+
+
+@pytest.mark.parametrize("command", ["track", "track-many", "warmup"])
+def test_online_flag_waits_the_default_lag_unless_told(command):
+    from posetrack.app._cli import _lag, _mode, build_parser
+
+    required = {
+        "track": ["--out", "o", "--depth", "d"],
+        "track-many": ["--out", "o", "--manifest", "m.csv"],
+        "warmup": ["--size", "320x240"],
+    }[command]
+
+    def parse(*flags):
+        args = build_parser().parse_args([command, *required, *flags])
+        return _mode(args), _lag(args)
+
+    assert parse("--online") == ("online", posetrack.ONLINE_LAG) == ("online", 3)
+    assert parse("--online", "0") == ("online", 0)
+    assert parse("--online", "4") == ("online", 4)
+    assert parse() == ("offline", 0) and parse("--per-frame") == ("per-frame", 0)

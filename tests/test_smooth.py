@@ -207,7 +207,7 @@ def modes(clip):
         "per-frame": pt.track(*args, mode="per-frame"),
         "offline": pt.track(*args),
         "offline, kp shape": pt.track(*args, refine=None),
-        "online": pt.track(*args, mode="online", lag=2),
+        "online": pt.track(*args, mode="online"),  # the default lag, ONLINE_LAG
         "online0": pt.track(*args, mode="online", lag=0),
     }
 
@@ -219,9 +219,9 @@ def test_online_refines_the_body_shape_causally(clip, modes):
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     # 8 frames (the program the offline runs above compiled), after 16 tracked frames.
     settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=16)
-    tr = pt.Tracker(clip.intrinsics, mode="online", refine=settings)
+    tr = pt.Tracker(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(*args)
-    plain = pt.track(*args, clip.intrinsics, mode="online", refine=None)
+    plain = pt.track(*args, clip.intrinsics, mode="online", lag=0, refine=None)
     used = tr.refine_report["frames_used"]
     assert len(used) == 8 and used.max() < 16 and tr.refine_s > 0
     tracked = np.flatnonzero(res.status == 0)
@@ -304,9 +304,11 @@ def test_shape_refinement_is_offline_and_online_and_checked(clip):
         pt.ShapeFitSettings(frames=0)
 
 
-def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(modes):
+def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(clip, modes):
     on, per = modes["online"], modes["per-frame"]
-    assert on.mode == "online"
+    # Online waits ONLINE_LAG (3) frames by default (the CLI's --online too); lag=0 does not.
+    assert (on.mode, on.lag, modes["online0"].lag, per.lag) == ("online", 3, 0, 0)
+    assert pt.ONLINE_LAG == 3 and pt.Tracker(clip.intrinsics, mode="online").lag == 3
     have = np.isfinite(per.keypoints3d).all(axis=(1, 2))
     assert np.isfinite(on.keypoints3d[have]).all()
     assert np.abs(on.keypoints3d[have] - per.keypoints3d[have]).max() > 1e-3

@@ -101,6 +101,11 @@ def _mode(args) -> str:
     return "online" if args.online is not None else ("per-frame" if args.per_frame else "offline")
 
 
+def _lag(args) -> int:
+    """The online lag of ``--online [LAG]`` (``ONLINE_LAG`` without a value; 0 offline)."""
+    return 0 if args.online is None else args.online
+
+
 def _refine(args) -> str | None:
     """The tracker's ``refine`` for ``--no-refine-shape`` (``track``, ``warmup``)."""
     return None if args.no_refine_shape else "auto"
@@ -200,7 +205,7 @@ def _track(args) -> int:
     mode = _mode(args)
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
-        lag=args.online or 0, fps=30.0 if fps is None else fps,
+        lag=_lag(args), fps=30.0 if fps is None else fps,
         sides={None: "auto", True: SideSettings(), False: None}[args.fix_sides],
         refine=_refine(args),
     )  # fmt: skip
@@ -232,7 +237,7 @@ def _track(args) -> int:
             "keypoints_scale": args.keypoints_scale,
             "seed": args.seed,
             "mode": mode,
-            "lag": args.online or 0,
+            "lag": _lag(args),
             "fix_sides": tracker.sides is not None,
             "refine_shape": not args.no_refine_shape,
         },
@@ -391,7 +396,7 @@ def _warmup(args) -> int:
         intrinsics = Intrinsics(fx=0.9 * w, fy=0.9 * w, cx=w / 2, cy=h / 2, width=w, height=h)
     config, mode = _tracker_config(args), _mode(args)
     t0 = time.perf_counter()
-    Tracker(intrinsics, config, mode=mode, lag=args.online or 0, refine=_refine(args)).prepare()
+    Tracker(intrinsics, config, mode=mode, lag=_lag(args), refine=_refine(args)).prepare()
     print(
         f"warmup: {config.method}, {config.n} hypothes{'is' if config.n == 1 else 'es'}, "
         f"{intrinsics.width}x{intrinsics.height}, {mode}: ready in {folder.parent} "
@@ -429,12 +434,15 @@ def _add_method_options(p: argparse.ArgumentParser) -> None:
 def _add_mode_options(p: argparse.ArgumentParser) -> None:
     """``--online [LAG]`` / ``--per-frame`` and ``--no-refine-shape`` (``track`` and
     ``warmup``)."""
+    from .._tracker import ONLINE_LAG
+
     motion = p.add_mutually_exclusive_group()
     motion.add_argument(
-        "--online", type=int, nargs="?", const=0, default=None, metavar="LAG",
+        "--online", type=int, nargs="?", const=ONLINE_LAG, default=None, metavar="LAG",
         help="causal motion model, as for a live camera: each pose uses only the frames up to "
-        "LAG frames after it (default LAG 0; experimental, see the README). Without this "
-        "flag the motion model smooths over the whole recording (offline)",
+        f"LAG frames after it (default LAG {ONLINE_LAG}, {ONLINE_LAG / 30 * 1000:.0f} ms at "
+        "30 fps; 0: no delay, shakier; see the README). Without this flag the motion model "
+        "smooths over the whole recording (offline)",
     )  # fmt: skip
     motion.add_argument(
         "--per-frame", action="store_true",

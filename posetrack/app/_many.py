@@ -113,7 +113,14 @@ def _join_processes(args) -> tuple[int, int]:
 def track_many_command(args) -> int:
     from .. import io
     from .._many import track_many
-    from ._cli import _followed_detections, _mode, _person_summary, _refine, _tracker_config
+    from ._cli import (
+        _followed_detections,
+        _lag,
+        _mode,
+        _person_summary,
+        _refine,
+        _tracker_config,
+    )
     from ._export import check_output_dir, save_results, status_counts
     from ._progress import ProgressBar
 
@@ -220,7 +227,7 @@ def track_many_command(args) -> int:
         [loader(k) for k in order], config, batch=args.batch, seed=args.seed, mode=mode,
         progress=bar, total_frames=sum(r.frames for r in todo), errors="return",
         on_result=lambda i, res: finished(order[i], res),
-        refine=_refine(args), lag=args.online or 0,
+        refine=_refine(args), lag=_lag(args),
     )  # fmt: skip
     summary = _record(out, manifest, names, {})
     c = summary["counts"]
