@@ -28,6 +28,7 @@ README). Off, a :class:`Program` is an ahead-of-time compiled ``jax.jit``.
 
 from __future__ import annotations
 
+import atexit
 import concurrent.futures
 import contextlib
 import copyreg
@@ -388,20 +389,50 @@ def _write(path: Path, exported, out_tree) -> bool:
         return False
 
 
+#: Set at interpreter exit: the background builders start no further program.
+_LEAVING = threading.Event()
+_BUILDERS: list[threading.Thread] = []
+_BUILDERS_LOCK = threading.Lock()
+
+
+@atexit.register
+def _finish_building() -> None:
+    """At interpreter exit, wait for the program each background builder is compiling and
+    start no other. A daemon thread still inside XLA when the interpreter finalises aborts
+    the whole process ("terminate called ...", exit code 134) after its work is done, e.g. an
+    online run shorter than the frames before its body-shape refinement, whose programs were
+    still building. The wait is at most one program's compilation."""
+    _LEAVING.set()
+    with _BUILDERS_LOCK:
+        builders = list(_BUILDERS)
+    for thread in builders:
+        thread.join()
+
+
 def prepare_in_background(jobs: Sequence[tuple[Program, tuple]]) -> None:
     """``program.prepare(*args)`` for each ``(program, args)``, one after another, in a daemon
     thread; returns at once. A caller that needs one of them meanwhile waits for it. A failure
     ends the thread quietly: it is raised where the program is needed (that caller builds it
-    again), not printed by the thread."""
+    again), not printed by the thread. At interpreter exit the thread finishes the program in
+    hand and stops (:func:`_finish_building`)."""
 
     def work():
-        for prog, args in jobs:
-            try:
-                prog.prepare(*args)
-            except Exception:
-                return
+        try:
+            for prog, args in jobs:
+                if _LEAVING.is_set():
+                    return
+                try:
+                    prog.prepare(*args)
+                except Exception:
+                    return
+        finally:
+            with _BUILDERS_LOCK:
+                _BUILDERS.remove(threading.current_thread())
 
-    threading.Thread(target=work, name="posetrack-prepare", daemon=True).start()
+    thread = threading.Thread(target=work, name="posetrack-prepare", daemon=True)
+    with _BUILDERS_LOCK:
+        _BUILDERS.append(thread)
+    thread.start()
 
 
 def program(

@@ -10,6 +10,8 @@ real tracker on a short clip.
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 import threading
 import time
 
@@ -178,3 +180,36 @@ def test_tracker_poses_are_the_same_with_and_without_the_store(clip, tmp_path):
         _programs._store["dir"] = saved[0]
         jax.config.update("jax_compilation_cache_dir", saved[1])
     assert np.array_equal(first, second, equal_nan=True)
+
+
+_EXIT_WHILE_BUILDING = """
+import jax, jax.numpy as jnp
+import posetrack as pt
+from posetrack._programs import Program
+
+pt.enable_cache("off")
+
+def heavy(x):  # ~1-2 s of XLA compilation on a CPU
+    for i in range(100):
+        x = jnp.tanh(x @ x.T * 1e-3 + i)[:, ::-1] + jnp.cumsum(x, axis=i % 2)
+    return x
+
+arg = jax.ShapeDtypeStruct((16, 16), jnp.float32)
+prog = Program(heavy, "exit_while_building")
+prog.prepare(arg, background=True)
+prog.wait_traced(arg)  # the builder is inside XLA now
+print("leaving", flush=True)
+"""
+
+
+def test_leaving_while_a_program_builds_exits_cleanly():
+    """A process that ends while a background builder is compiling (an online run shorter
+    than the frames before its body-shape refinement; an error in the first frames) exits
+    with its own status: it used to abort ("terminate called ...", 134) once XLA returned
+    into a finalising interpreter."""
+    proc = subprocess.run(
+        [sys.executable, "-c", _EXIT_WHILE_BUILDING], capture_output=True, text=True,
+        timeout=300, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "leaving" and "terminate called" not in proc.stderr
