@@ -3,7 +3,8 @@
 Each measurement is a fresh Python process that imports posetrack, turns the cache on
 (``posetrack.enable_cache``, as the command line does), loads a short synthetic recording from
 an ``.npz`` and tracks it with the shipped configuration (``posetrack.track``'s defaults: MHT_h,
-N = 10, offline motion model). The clock starts when the process is launched.
+N = 10, offline motion model; ``--mode online``: the causal model at its default lag, as a live
+camera would run it). The clock starts when the process is launched.
 
 * **cold**: an empty cache folder (nothing compiled, nothing traced);
 * **warm**: the same folder again, filled by the cold process before it.
@@ -18,7 +19,11 @@ and the warm run must give the same poses bit for bit (``same_poses``).
 The command line on the issue's case (150 frames at 320x240, ``posetrack track --no-video``) is
 measured the same way, cold and warm, from launch to exit.
 
-Usage: python benchmarks/startup.py [--quick] [--out benchmarks/results/startup.json]
+Online (``--mode online``), ``first_published_s`` is when the first pose is published: the
+frame ``lag`` frames after the first one has been tracked (``Tracker.lagged``).
+
+Usage: python benchmarks/startup.py [--quick] [--mode offline|online]
+[--out benchmarks/results/startup.json]
 (``--quick``: 320x240 only, no command line rows.)
 """
 
@@ -39,7 +44,7 @@ FRAMES = 30
 SEED = 7  # any clip: the timings do not depend on the motion
 
 
-def _child(npz: str, cache: str, launched: float) -> None:
+def _child(npz: str, cache: str, launched: float, mode: str) -> None:
     """One measured process (``--child``): prints one JSON line."""
     t_import0 = time.time()
     import numpy as np
@@ -59,11 +64,11 @@ def _child(npz: str, cache: str, launched: float) -> None:
     first: list[float] = []
 
     def progress(done, total, postfix):
-        if not first:
-            first.append(time.time())
+        first.append(time.time())
 
-    tracker = pt.Tracker(intr)
+    tracker = pt.Tracker(intr, mode=mode)
     result = tracker.run(depth, kp, conf, progress=progress)
+    lag = tracker.lag if mode == "online" else 0
     t_done = time.time()
     np.save(npz.replace(".npz", f"-{os.getpid()}.npy"), result.keypoints3d)
     print(json.dumps({
@@ -71,6 +76,7 @@ def _child(npz: str, cache: str, launched: float) -> None:
         "import_s": t_import - launched,
         "loaded_s": t_loaded - launched,
         "first_pose_s": first[0] - launched,
+        "first_published_s": first[lag] - launched,
         "result_s": t_done - launched,
         "ms_per_frame": result.ms_per_frame,
         "smooth_s": tracker.smooth_s,
@@ -83,11 +89,11 @@ def _child(npz: str, cache: str, launched: float) -> None:
     }))  # fmt: skip
 
 
-def _run_child(npz: Path, cache: Path) -> dict:
+def _run_child(npz: Path, cache: Path, mode: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     launched = time.time()
     proc = subprocess.run(
-        [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched)],
+        [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched), mode],
         capture_output=True, text=True, env=env, check=False,
     )  # fmt: skip
     if proc.returncode:
@@ -139,6 +145,7 @@ def _cli_rows(folder: Path) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--mode", choices=("offline", "online"), default="offline")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "startup.json"))
     args = ap.parse_args()
     import numpy as np
@@ -152,7 +159,7 @@ def main() -> None:
         for width, height in resolutions:
             npz = _make_clip(folder, width, height)
             cache = folder / f"cache-{width}x{height}"
-            runs = {run: _run_child(npz, cache) for run in ("cold", "warm")}
+            runs = {run: _run_child(npz, cache, args.mode) for run in ("cold", "warm")}
             a, b = (np.load(runs[r]["poses"]) for r in ("cold", "warm"))
             same = bool(np.array_equal(a, b, equal_nan=True))
             for run, r in runs.items():
@@ -162,16 +169,20 @@ def main() -> None:
                     "ms_per_frame": round(r["ms_per_frame"], 1),
                     "same_poses": same, "programs": r["programs"],
                 })  # fmt: skip
-        cli = [] if args.quick else _cli_rows(folder)
+        cli = [] if args.quick or args.mode != "offline" else _cli_rows(folder)
 
-    print(f"\nTime to first pose, new process, shipped configuration, {FRAMES} frames")
-    print(f"{'depth':>10} {'run':>5} {'import':>7} {'1st pose':>9} {'result':>7} "
+    print(
+        f"\nTime to first pose, new process, shipped configuration ({args.mode}), "
+        f"{FRAMES} frames"
+    )
+    print(f"{'depth':>10} {'run':>5} {'import':>7} {'1st pose':>9} {'published':>10} {'result':>7} "
           f"{'ms/frame':>9} {'traced s':>9} {'XLA/load s':>11} {'same':>5}")  # fmt: skip
     for r in rows:
         traced = sum(p["trace_s"] for p in r["programs"])
         compiled = sum(p["compile_s"] for p in r["programs"])
         print(
             f"{r['resolution']:>10} {r['run']:>5} {r['import_s']:7.2f} {r['first_pose_s']:9.2f} "
+            f"{r['first_published_s']:10.2f} "
             f"{r['result_s']:7.2f} {r['ms_per_frame']:9.1f} {traced:9.2f} {compiled:11.2f} "
             f"{str(r['same_poses']):>5}"
         )
@@ -185,6 +196,7 @@ def main() -> None:
     record = {
         "benchmark": "startup",
         "frames": FRAMES,
+        "mode": args.mode,
         "machine": machine_info(),
         "rows": rows,
         "cli_150_frames_320x240": cli,
@@ -196,6 +208,6 @@ def main() -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        _child(sys.argv[2], sys.argv[3], float(sys.argv[4]))
+        _child(sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5])
     else:
         main()

@@ -611,7 +611,8 @@ class Tracker:
                 jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
             )))  # fmt: skip
         elif self.mode == "online":
-            later.append((online_update_program, (
+            # Every online frame runs it, the first one included: it builds beside the step.
+            jobs.append((online_update_program, (
                 self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
                 f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
             )))  # fmt: skip
@@ -628,9 +629,11 @@ class Tracker:
             for prog, args in (*jobs, (step, step_args), *later):
                 prog.prepare(*args)
             return
-        # The step (the big program), then the motion model (the first frames do not need
-        # it) in one thread. Tracing holds the interpreter, so the small set-up programs start
-        # once the step is traced; their compilation then runs beside the step's.
+        # The step (the big program), then the offline motion model and the body-shape
+        # refinement (the first frames do not need them) in one thread. Tracing holds the
+        # interpreter, so the small programs the first frame needs (set-up; online, the
+        # online model) start once the step is traced; their compilation then runs beside
+        # the step's.
         prepare_in_background([(step, step_args), *later])
         step.wait_traced(*step_args)
         prepare_in_background(jobs)
