@@ -411,16 +411,18 @@ class Tracker:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
         if isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0:
             raise ValueError(f"Tracker: lag must be an int >= 0 (frames), got {lag!r}")
-        if lag >= motion.online_window:
+        if not isinstance(motion, SmoothSettings):
+            raise TypeError(f"Tracker: motion must be posetrack.SmoothSettings, got {type(motion)}")
+        if mode == "online" and lag >= motion.online_window:
             raise ValueError(
                 f"Tracker: lag {lag} must be smaller than motion.online_window "
                 f"({motion.online_window} frames)"
             )
-        if not isinstance(motion, SmoothSettings):
-            raise TypeError(f"Tracker: motion must be posetrack.SmoothSettings, got {type(motion)}")
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
-        self.mode, self.lag, self.motion, self.fps = mode, int(lag), motion, float(fps)
+        # The lag is the online mode's alone: offline and per-frame poses wait for nothing.
+        lag = int(lag) if mode == "online" else 0
+        self.mode, self.lag, self.motion, self.fps = mode, lag, motion, float(fps)
         if isinstance(sides, str) and sides == "auto":
             sides = SideSettings() if mode == "offline" else None
         if sides is not None and not isinstance(sides, SideSettings):
@@ -825,9 +827,9 @@ class Tracker:
         :data:`ONLINE_LAG`, 3) the estimate's ``params`` and ``keypoints3d`` are this frame's
         per-frame pose and the published pose is :attr:`lagged`, the smoothed pose of the frame
         L frames back; with ``lag=0`` the estimate's ``params`` and ``keypoints3d`` are the
-        smoothed pose of this frame itself (no delay, shakier). With ``refine`` (online's default), the call that
-        completes ``refine.online_after`` tracked frames also refines the body shape (a few
-        seconds on a CPU, once; :attr:`refine_s`).
+        smoothed pose of this frame itself (no delay, shakier). With ``refine`` (online's
+        default), the call that completes ``refine.online_after`` tracked frames also refines
+        the body shape (a few seconds on a CPU, once; :attr:`refine_s`).
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
@@ -1041,7 +1043,7 @@ class Tracker:
             exchanged=exchanged,
             floor=self._found_floor,
             mode=self.mode,
-            lag=self.lag if self.mode == "online" else 0,
+            lag=self.lag,
         )
 
     def _run_frame_into(

@@ -309,6 +309,7 @@ def test_online_with_lag_fills_every_frame_and_differs_from_per_frame(clip, mode
     # Online waits ONLINE_LAG (3) frames by default (the CLI's --online too); lag=0 does not.
     assert (on.mode, on.lag, modes["online0"].lag, per.lag) == ("online", 3, 0, 0)
     assert pt.ONLINE_LAG == 3 and pt.Tracker(clip.intrinsics, mode="online").lag == 3
+    assert pt.Tracker(clip.intrinsics).lag == 0  # offline waits for nothing
     have = np.isfinite(per.keypoints3d).all(axis=(1, 2))
     assert np.isfinite(on.keypoints3d[have]).all()
     assert np.abs(on.keypoints3d[have] - per.keypoints3d[have]).max() > 1e-3
