@@ -814,8 +814,9 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     tr2.run(seq.depth[1:T], seq.keypoints2d[1:T], seq.confidence[1:T], progress=None)
     run_s = time.perf_counter() - t0
     run_steps = tr2.step_times[n_before:]
-    # The motion models on the same frames: online (one extra jitted call per frame, the default lag)
-    # and offline (the smoother after the forward pass), each against its own steps.
+    # The motion models on the same frames: online (one extra jitted call per frame, at the
+    # default lag) and offline (the smoother after the forward pass), each against its own
+    # steps.
     tr3 = Tracker(seq.intrinsics, r.config, shape=r.frames.shape, mode="online")
     for t in range(T):
         tr3.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])

@@ -391,8 +391,7 @@ def _write(path: Path, exported, out_tree) -> bool:
 
 #: Set at interpreter exit: the background builders start no further program.
 _LEAVING = threading.Event()
-_BUILDERS: list[threading.Thread] = []
-_BUILDERS_LOCK = threading.Lock()
+_BUILDER_NAME = "posetrack-prepare"
 
 
 @atexit.register
@@ -403,10 +402,9 @@ def _finish_building() -> None:
     online run shorter than the frames before its body-shape refinement, whose programs were
     still building. The wait is at most one program's compilation."""
     _LEAVING.set()
-    with _BUILDERS_LOCK:
-        builders = list(_BUILDERS)
-    for thread in builders:
-        thread.join()
+    for thread in threading.enumerate():
+        if thread.name == _BUILDER_NAME:
+            thread.join()
 
 
 def prepare_in_background(jobs: Sequence[tuple[Program, tuple]]) -> None:
@@ -417,22 +415,15 @@ def prepare_in_background(jobs: Sequence[tuple[Program, tuple]]) -> None:
     hand and stops (:func:`_finish_building`)."""
 
     def work():
-        try:
-            for prog, args in jobs:
-                if _LEAVING.is_set():
-                    return
-                try:
-                    prog.prepare(*args)
-                except Exception:
-                    return
-        finally:
-            with _BUILDERS_LOCK:
-                _BUILDERS.remove(threading.current_thread())
+        for prog, args in jobs:
+            if _LEAVING.is_set():
+                return
+            try:
+                prog.prepare(*args)
+            except Exception:
+                return
 
-    thread = threading.Thread(target=work, name="posetrack-prepare", daemon=True)
-    with _BUILDERS_LOCK:
-        _BUILDERS.append(thread)
-    thread.start()
+    threading.Thread(target=work, name=_BUILDER_NAME, daemon=True).start()
 
 
 def program(

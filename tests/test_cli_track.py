@@ -22,7 +22,7 @@ import pytest
 import posetrack
 from posetrack import _body as body
 from posetrack import io
-from posetrack.app._cli import main
+from posetrack.app._cli import _lag, _mode, build_parser, main
 from posetrack.app._export import BVH_KEYPOINTS
 from posetrack._depthobs import NO_FLOOR
 from posetrack.app._overlay import video_codec
@@ -655,8 +655,6 @@ def test_keypoints_scale_rescales(half_size_rec, cli, poses, tmp_path):
 
 @pytest.mark.parametrize("command", ["track", "track-many", "warmup"])
 def test_online_flag_waits_the_default_lag_unless_told(command):
-    from posetrack.app._cli import _lag, _mode, build_parser
-
     required = {
         "track": ["--out", "o", "--depth", "d"],
         "track-many": ["--out", "o", "--manifest", "m.csv"],
