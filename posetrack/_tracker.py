@@ -338,6 +338,43 @@ class _RunOutputs:
             getattr(self, name)[start : start + len(v)] = v
 
 
+def _frame_delta(est: FrameEstimate | None, status: int) -> float:
+    """The Delta of a frame's pose (NaN where the frame has none), as the arbitration sums."""
+    return float(est.delta) if est is not None and status != NO_OBSERVATION else float("nan")
+
+
+@dataclasses.dataclass
+class _Branch:
+    """One reading of a stretch under online arbitration: the tracker's state after its
+    newest frame, its frames' Delta, and what :meth:`Tracker.update` returned for it."""
+
+    snapshot: tuple
+    deltas: list[float]
+    out: tuple
+
+
+@dataclasses.dataclass
+class _OnlineArbitration:
+    """A stretch tracked both ways online (:meth:`Tracker._update_arbitrated`)."""
+
+    left: int
+    exchanged: _Branch
+    detected: _Branch | None = None
+
+    def prefers_exchanged(self, sides: SideSettings) -> bool:
+        return prefer_exchanged(
+            np.array(self.detected.deltas), np.array(self.exchanged.deltas),
+            sides.arbitrate_margin,
+        )  # fmt: skip
+
+    def report(self, frames_seen: int, chosen: bool) -> tuple[int, int, float, float, bool]:
+        n = len(self.exchanged.deltas)
+        return (
+            frames_seen - n, frames_seen, float(np.nansum(self.detected.deltas)),
+            float(np.nansum(self.exchanged.deltas)), chosen,
+        )  # fmt: skip
+
+
 class Tracker:
     """Track one person through an RGB-D sequence.
 
@@ -378,16 +415,18 @@ class Tracker:
     comparison).
 
     **Left/right swaps of the detector** are undone before each frame is fitted
-    (``sides``, :class:`SideSettings`; ``"auto"``, the default: on in offline :meth:`run`,
-    off online and per-frame): a group of keypoints (arms, legs) whose left and right sides
+    (``sides``, :class:`SideSettings`; ``"auto"``, the default: on offline and online, off
+    per-frame): a group of keypoints (arms, legs) whose left and right sides
     both jump and later jump back is read exchanged while that is the continuous reading.
     Offline a pre-pass reads the whole recording forwards and backwards
     (:func:`two_sided_exchanged`), and the depth arbitrates: each stretch read exchanged is
     tracked twice from the same state, exchanged and as detected, and the exchange is kept
     only where its poses' Delta is lower (:attr:`side_spans`). 2D continuity alone misreads
     occluded side views (arms overlapping in the image); the depth does not reward those
-    misreadings. Online (``sides=SideSettings()``) only the forward pass exists, taken as
-    read. :attr:`TrackResult.exchanged` says where labels were exchanged.
+    misreadings. Online only the forward pass exists; where it newly reads a group
+    exchanged, the next ``lag + 1`` frames are tracked both ways and the depth decides before
+    any of them is published (:meth:`update`). :attr:`TrackResult.exchanged` says where
+    labels were exchanged.
     """
 
     def __init__(
@@ -424,7 +463,7 @@ class Tracker:
         lag = int(lag) if mode == "online" else 0
         self.mode, self.lag, self.motion, self.fps = mode, lag, motion, float(fps)
         if isinstance(sides, str) and sides == "auto":
-            sides = SideSettings() if mode == "offline" else None
+            sides = None if mode == "per-frame" else SideSettings()
         if sides is not None and not isinstance(sides, SideSettings):
             raise TypeError(
                 f"Tracker: sides must be 'auto', posetrack.SideSettings or None, got {sides!r}"
@@ -498,9 +537,10 @@ class Tracker:
         self._found_floor: np.ndarray | None = None  # the first in this run (TrackResult.floor)
         self._depth_fit: np.ndarray | None = None
         self.side_spans: list[tuple[int, int, float, float, bool]] = []
-        """After an offline :meth:`run` with :attr:`sides` arbitrated: per stretch the
-        two-sided labelling read exchanged, ``(start, stop, Delta summed as detected, Delta
-        summed exchanged, exchange kept)``."""
+        """With :attr:`sides` arbitrated, per stretch tracked both ways ``(start, stop, Delta
+        summed as detected, Delta summed exchanged, exchange kept)``: after an offline
+        :meth:`run`, the stretches the two-sided labelling read exchanged; online, the first
+        frames of each exchange the forward pass read (since the last :meth:`run`)."""
         self._forget_person()
         self._reset_motion()
 
@@ -515,6 +555,7 @@ class Tracker:
         self._online_refine_pending = self.mode == "online" and self.refine is not None
         self._online_tracked = 0
         self._online_kept: dict[int, tuple] = {}
+        self._arbitration = None
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
         frames before the newest, smoothed (``None`` until there is one)."""
@@ -566,6 +607,15 @@ class Tracker:
         # Offline with arbitration (SideSettings.arbitrate): True while a stretch is tracked
         # with the labels as detected.
         self._as_detected = False
+        # Online with arbitration: the groups the depth kept as detected (until the labeller
+        # reads them as detected again), the labelling used in the last frame, the groups it
+        # newly exchanged in this frame, and the stretch being tracked both ways (or None).
+        G = len(self.exchanged)
+        self._veto = np.zeros(G, bool)
+        self._last_exchanged = np.zeros(G, bool)
+        self._new_exchanged = np.zeros(G, bool)
+        self._since_judged = np.zeros(G, np.int64)
+        self._arbitration: _OnlineArbitration | None = None
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -709,6 +759,15 @@ class Tracker:
             if self._two_sided is not None and self._run_frame is not None:
                 self.exchanged = self._offline_exchanged(p, self.exchanged)
                 kp, conf = self._labeller.relabel(*raw, self.exchanged)
+            elif self._arbitrates_online:
+                self._veto &= self.exchanged  # a veto ends with the exchange it vetoed
+                self.exchanged = self.exchanged & ~self._veto
+                self._since_judged = np.where(self.exchanged, self._since_judged + 1, 0)
+                self._new_exchanged = (self.exchanged & ~self._last_exchanged) | (
+                    self._since_judged > self.sides.online_rejudge
+                )
+                self._last_exchanged = self.exchanged.copy()
+                kp, conf = self._labeller.relabel(*raw, self.exchanged)
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]
             z_ref = float(np.median(cands.points3d[p, own, 2])) if own.any() else None
@@ -829,13 +888,28 @@ class Tracker:
         L frames back; with ``lag=0`` the estimate's ``params`` and ``keypoints3d`` are the
         smoothed pose of this frame itself (no delay, shakier). With ``refine`` (online's
         default), the call that completes ``refine.online_after`` tracked frames also refines
-        the body shape (a few seconds on a CPU, once; :attr:`refine_s`).
+        the body shape (a few seconds on a CPU, once; :attr:`refine_s`; while a left/right
+        stretch is judged, the call after the judgement). With ``sides``
+        (online's default), a frame in which the left/right labelling newly reads a group
+        exchanged starts a stretch of ``lag + 1`` frames tracked both ways (two steps per
+        frame); each call then returns the leading reading's estimate, and the last one
+        keeps the reading whose Delta summed is lower (:attr:`side_spans`).
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
         (any order); ``confidence``: (18,) or (P, 18), 0 = missing. :attr:`person` says which
         detection was followed.
         """
+        if not self._arbitrates_online:
+            return self._update_once(depth, keypoints2d, confidence)
+        return self._update_arbitrated(depth, keypoints2d, confidence)
+
+    @property
+    def _arbitrates_online(self) -> bool:
+        return self.mode == "online" and self.sides is not None and self.sides.arbitrate
+
+    def _update_once(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
+        """:meth:`update` along one labelling."""
         self._frames_seen += 1
         est, st = self._update_frame(depth, keypoints2d, confidence)
         if self.mode != "online":
@@ -852,12 +926,79 @@ class Tracker:
             )
         return est, st
 
+    def _update_arbitrated(self, depth, kp2d, conf) -> tuple[FrameEstimate | None, int]:
+        """:meth:`update` online with :attr:`SideSettings.arbitrate`: where the forward
+        labelling newly reads a group exchanged, the frame and the next ones (``online_frames``
+        in all; by default the lag + 1, so no pose of the stretch is published before the
+        decision) are tracked twice from the same state, exchanged and as detected, and the
+        reading whose poses score the lower Delta summed is kept (:func:`prefer_exchanged`);
+        an exchange the depth rejected stays vetoed until the labelling reads the group as
+        detected again. Until the decision the leading reading's state is the tracker's."""
+        arb = self._arbitration
+        if arb is None:
+            self._online_refine_due()
+            before = self._online_snapshot()
+            out = self._update_once(depth, kp2d, conf)
+            new = self._new_exchanged.copy()
+            if not new.any() or self._person < 0:
+                return out
+            first = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
+            arb = _OnlineArbitration(left=self._online_frames(), exchanged=first)
+            self._restore_online(before)
+            self._veto = self._veto | new
+            self._since_judged[new] = 0
+            arb.exchanged.snapshot[-1][new] = 0
+            out = self._update_once(depth, kp2d, conf)
+            arb.detected = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
+            self._arbitration = arb
+        else:
+            for branch in (arb.exchanged, arb.detected):
+                self._restore_online(branch.snapshot)
+                branch.out = self._update_once(depth, kp2d, conf)
+                branch.snapshot = self._online_snapshot()
+                branch.deltas.append(_frame_delta(*branch.out))
+        arb.left -= 1
+        keep = arb.exchanged if arb.prefers_exchanged(self.sides) else arb.detected
+        if arb.left <= 0:
+            self._arbitration = None
+            self.side_spans.append(arb.report(self._frames_seen, keep is arb.exchanged))
+        self._restore_online(keep.snapshot)
+        return keep.out
+
+    def _online_frames(self) -> int:
+        n = self.sides.online_frames
+        return self.lag + 1 if n is None else int(n)
+
+    def _online_snapshot(self) -> tuple:
+        """:meth:`_snapshot` plus what the online mode carries from frame to frame."""
+        return (
+            self._snapshot(), self._window, self._window_frames.copy(),
+            self._window_valid.copy(), self.lagged, self._online_refine_pending,
+            self._online_tracked, dict(self._online_kept), self._person, self.exchanged.copy(),
+            self._veto.copy(), self._last_exchanged.copy(), self._depth_fit,
+            self._since_judged.copy(),
+        )  # fmt: skip
+
+    def _restore_online(self, snap: tuple) -> None:
+        self._restore(snap[0])
+        (
+            self._window, frames, valid, self.lagged, self._online_refine_pending,
+            self._online_tracked, kept, self._person, exchanged, veto, last, self._depth_fit,
+            since,
+        ) = snap[1:]  # fmt: skip
+        self._since_judged = since.copy()
+        self._window_frames, self._window_valid = frames.copy(), valid.copy()
+        self._online_kept, self.exchanged = dict(kept), exchanged.copy()
+        self._veto, self._last_exchanged = veto.copy(), last.copy()
+
     def _online_refine_frame(self, est: FrameEstimate) -> None:
         """Online body shape from depth, causally: keep the best-observed tracked frame of
         each of ``refine.frames`` stretches of the first ``refine.online_after`` tracked
         frames; when they are all seen, refine :attr:`shape` on them once (the next frames are
         tracked with it)."""
         R = self.refine
+        if self._online_tracked >= R.online_after:  # all in; the refinement waits its turn
+            return
         lm = est.landmarks
         _keep_best_observed(
             self._online_kept, self._online_tracked * R.frames // R.online_after,
@@ -868,7 +1009,12 @@ class Tracker:
             ),
         )  # fmt: skip
         self._online_tracked += 1
-        if self._online_tracked < R.online_after:
+        if not self._arbitrates_online:  # else the next update refines, before any branching
+            self._online_refine_due()
+
+    def _online_refine_due(self) -> None:
+        """Refine the body shape online once ``refine.online_after`` tracked frames are in."""
+        if not self._online_refine_pending or self._online_tracked < self.refine.online_after:
             return
         self._online_refine_pending = False
         kept = [self._online_kept[k][1:] for k in sorted(self._online_kept)]
@@ -1268,7 +1414,8 @@ def track(
     "per-frame" (the paper's tracker alone); ``lag``: online, each pose waits for the ``lag``
     frames after it (default :data:`ONLINE_LAG`, 3); ``fps`` scales the motion prior; ``sides``
     undoes the detector's left/right swaps (:class:`SideSettings`; ``"auto"``: offline, read
-    from both directions and arbitrated by the depth; ``None``: off)."""
+    from both directions and arbitrated by the depth; online, read forwards and each exchange
+    judged by the depth before it is published; ``None``: off)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides, refine=refine,

@@ -114,6 +114,10 @@ def test_settings_and_labeller_reject_bad_values():
         pt.SideSettings(switch_cost=0.0)
     with pytest.raises(ValueError, match="speed"):
         pt.SideSettings(speed=float("nan"))
+    with pytest.raises(ValueError, match="online_frames"):
+        pt.SideSettings(online_frames=0)
+    with pytest.raises(ValueError, match="online_rejudge"):
+        pt.SideSettings(online_rejudge=2.5)
     with pytest.raises(ValueError, match="fx"):
         pt.SideLabeller(0.0)
     with pytest.raises(TypeError, match="SideSettings"):

@@ -391,3 +391,71 @@ def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, mon
     d_judged = pt.accuracy(judged.per_frame_keypoints3d[10:25], gt[10:25]).mean_mm
     print(f"frames 10-24: D {d_judged:.1f} mm arbitrated, {d_taken:.1f} taken as read")
     assert d_judged < d_taken - 10.0
+
+
+def _arm_swap(clip, frames):
+    """The clip's keypoints with the detector's right and left arm exchanged in ``frames``."""
+    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
+    for a, b in pt.SIDE_GROUPS["arms"]:
+        kp[frames, a], kp[frames, b] = clip.keypoints2d[frames, b], clip.keypoints2d[frames, a]
+        conf[frames, a], conf[frames, b] = clip.confidence[frames, b], clip.confidence[frames, a]
+    return kp, conf
+
+
+def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
+    """Online with ``sides``, the stretch the forward labelling newly reads exchanged is
+    tracked both ways for lag + 1 frames and the depth keeps the exchange; the body-shape
+    refinement that comes due meanwhile runs after the decision, on frames seen before it."""
+    sw = np.arange(12, 28)
+    kp, conf = _arm_swap(clip, sw)
+    refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=13)
+    tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=refine)
+    fixed = tr.run(clip.depth, kp, conf)
+    raw = pt.track(clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None)
+    k = pt.ONLINE_LAG + 1
+    assert [s[:2] for s in tr.side_spans][:1] == [(12, 12 + k)], tr.side_spans
+    start, stop, delta_as, delta_ex, kept = tr.side_spans[0]
+    assert kept and delta_ex < delta_as
+    seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
+    assert fixed.exchanged[sw[seen], 0].mean() > 0.9
+    assert tr.refine_report is not None and tr.refine_report["frames_used"].max() < 13
+    gt = clip.joints3d
+    n_fixed = pt.swapped_limb_frames(fixed.keypoints3d, gt)
+    assert n_fixed <= pt.swapped_limb_frames(modes["online"].keypoints3d, gt) + 1
+    assert n_fixed < pt.swapped_limb_frames(raw.keypoints3d, gt)
+
+
+def test_online_the_depth_refuses_a_misreading_before_it_is_published(clip, modes, monkeypatch):
+    """Online, a forward labelling that misreads correct arm labels in frames 10-19 (made to
+    here; 2D continuity does on occluded side views) is tracked both ways for lag + 1 frames,
+    the depth refuses it and the exchange stays vetoed while it is read: the track is the
+    one without relabelling, bit for bit. Taken as read, it costs accuracy."""
+    update = pt.SideLabeller.update
+
+    def misread(self, keypoints2d, confidence, points3d, has_depth):
+        kp, conf, ex = update(self, keypoints2d, confidence, points3d, has_depth)
+        t = int(np.argmin(np.abs(clip.keypoints2d - keypoints2d).sum(axis=(1, 2))))
+        if 10 <= t < 20:
+            ex = np.array([True, False])
+            kp, conf = self.relabel(keypoints2d, confidence, ex)
+        return kp, conf, ex
+
+    monkeypatch.setattr(pt.SideLabeller, "update", misread)
+    args = (clip.depth, clip.keypoints2d, clip.confidence)
+    tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=None)
+    judged = tr.run(*args)
+    assert [s[:2] for s in tr.side_spans] == [(10, 10 + pt.ONLINE_LAG + 1)], tr.side_spans
+    assert not tr.side_spans[0][-1]
+    assert not judged.exchanged.any()
+    plain = pt.track(*args, clip.intrinsics, mode="online", sides=None, refine=None)
+    np.testing.assert_array_equal(judged.keypoints3d, plain.keypoints3d)
+    taken = pt.track(
+        *args, clip.intrinsics, mode="online", refine=None,
+        sides=pt.SideSettings(arbitrate=False),
+    )  # fmt: skip
+    assert taken.exchanged[10:20, 0].all()
+    gt = clip.joints3d
+    d_taken = pt.accuracy(taken.keypoints3d[10:25], gt[10:25]).mean_mm
+    d_judged = pt.accuracy(judged.keypoints3d[10:25], gt[10:25]).mean_mm
+    print(f"frames 10-24: D {d_judged:.1f} mm arbitrated online, {d_taken:.1f} taken as read")
+    assert d_judged < d_taken - 10.0

@@ -246,7 +246,8 @@ def _track(args) -> int:
         "frame_timestamps": None if rec.timestamps is None else rec.timestamps.tolist(),
         "person": person,
         "sides_exchanged": undone,
-        # Offline: each stretch the two-sided labelling read exchanged, tracked both ways.
+        # Each stretch tracked both ways (offline: read exchanged from both directions;
+        # online: the first frames of each exchange read forwards).
         "sides_arbitrated": [
             {"start": a, "stop": b, "delta_detected": da, "delta_exchanged": dx, "kept": k}
             for a, b, da, dx, k in tracker.side_spans
@@ -643,8 +644,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--fix-sides", dest="fix_sides", action="store_const", const=True, default=None,
         help="undo the detector's left/right swaps of the arms and legs before fitting. "
         "Default: on offline (read from both directions, each exchange kept only where the "
-        "depth agrees), off with --online/--per-frame; with --online this turns on the "
-        "causal reading (taken as read; see the README)",
+        "depth agrees) and with --online (read forwards; the depth judges each exchange "
+        "before its poses are published), off with --per-frame",
     )  # fmt: skip
     sides.add_argument(
         "--no-fix-sides", dest="fix_sides", action="store_const", const=False,
