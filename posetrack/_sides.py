@@ -71,7 +71,8 @@ pass reads it; one it kept is judged again after :attr:`SideSettings.online_reju
 100-107 standard, 100-105 wide; lag 3; D mm clean / occluded) the online tracker without
 relabelling gave 35.3 / 53.2 standard and 75.2 / 89.0 wide, the forward reading taken as
 read 31.8 / 55.5 and 49.9 / 74.9, arbitrated 31.0 / 51.8 and 56.5 / 73.2 (judged once per
-exchange, not again: standard occluded 53.3; again after 8 frames: 50.5 / 73.4 at more cost).
+exchange, never again: standard occluded 53.3; again after 8 frames instead of 16: 31.0 / 50.5
+and 57.4 / 73.4, at more cost).
 The cost is the second tracking of those frames: 5-10 % of the frames on the standard clips,
 9-18 % on the wide ones.
 
