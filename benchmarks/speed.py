@@ -822,6 +822,8 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
         tr3.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
     online_ms = 1e3 * float(np.median(tr3.motion_times[1:]))
     online_step = 1e3 * float(np.median(tr3.step_times))
+    # The left/right judgement tracks the first lag + 1 frames of each exchange twice.
+    twice = sum(stop - start for start, stop, *_ in tr3.side_spans) / T
     # The smoother works in windows of 96 frames (80 new each): a recording of 176 frames
     # (the T frames played forward and back) is two windows, the steady-state cost per frame.
     k = len(seq.depth)
@@ -836,7 +838,8 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     offline_step = 1e3 * float(np.median(tr4.step_times))
     return {
         "online_ms": round(online_ms, 3),
-        "online_total_over_step": round((online_step + online_ms) / online_step, 3),
+        "online_retracked_share": round(twice, 3),
+        "online_total_over_step": round((online_step + online_ms) * (1 + twice) / online_step, 3),
         "offline_ms_per_frame": round(offline_ms, 3),
         "offline_total_over_step": round((offline_step + offline_ms) / offline_step, 3),
         "update_ms": round(1e3 * float(np.median(walls)), 3),
