@@ -63,7 +63,8 @@ stretches (benchmarks/motion.py records the share of frames).
 **Online the depth arbitrates too** (:meth:`Tracker.update`, ``mode="online"``): only the
 forward pass exists, so the stretch is not known in advance. Where the forward pass newly
 reads a group exchanged, that frame and the next ones (:attr:`SideSettings.online_frames`;
-by default the lag + 1, so the decision comes before any pose of the stretch is published)
+by default the lag + 1, the most for which the decision still comes before the stretch's
+first pose is published)
 are tracked twice from the same state, exchanged and as detected, and the reading with the
 lower Delta summed is kept. An exchange the depth refused stays refused while the forward
 pass reads it; one it kept is judged again after :attr:`SideSettings.online_rejudge` frames
@@ -142,8 +143,8 @@ class SideSettings:
     online_frames: int | None = None
     """Online (:meth:`Tracker.update`, with :attr:`arbitrate`): how many frames, from the
     first one the forward pass newly reads a group exchanged, are tracked both ways before
-    the depth decides. ``None``: the tracker's lag + 1, so the decision comes before any pose
-    of the stretch is published."""
+    the depth decides. ``None``: the tracker's lag + 1, the most frames for which the decision
+    still comes before the stretch's first pose is published."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -154,17 +155,14 @@ class SideSettings:
             raise ValueError(
                 f"SideSettings: arbitrate must be True or False, got {self.arbitrate!r}"
             )
-        a = self.arbitrate_after
-        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or a < 0:
-            raise ValueError(
-                f"SideSettings: arbitrate_after must be an int >= 0 (frames), got {a!r}"
-            )
-        for name in ("online_frames", "online_rejudge"):
+        for name, least in (("arbitrate_after", 0), ("online_frames", 1), ("online_rejudge", 1)):
             n = getattr(self, name)
             if n is None and name == "online_frames":
                 continue
-            if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-                raise ValueError(f"SideSettings: {name} must be an int >= 1 (frames), got {n!r}")
+            if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < least:
+                raise ValueError(
+                    f"SideSettings: {name} must be an int >= {least} (frames), got {n!r}"
+                )
         names = ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin")
         for name in (*names, "arbitrate_margin"):
             v = getattr(self, name)

@@ -608,11 +608,11 @@ class Tracker:
         # with the labels as detected.
         self._as_detected = False
         # Online with arbitration: the groups the depth kept as detected (until the labeller
-        # reads them as detected again), the labelling used in the last frame, the groups it
-        # newly exchanged in this frame, and the stretch being tracked both ways (or None).
+        # reads them as detected again), the groups this frame newly exchanged (or held
+        # exchanged past online_rejudge frames since they were judged), and the stretch being
+        # tracked both ways (or None).
         G = len(self.exchanged)
         self._veto = np.zeros(G, bool)
-        self._last_exchanged = np.zeros(G, bool)
         self._new_exchanged = np.zeros(G, bool)
         self._since_judged = np.zeros(G, np.int64)
         self._arbitration: _OnlineArbitration | None = None
@@ -752,7 +752,7 @@ class Tracker:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
         if self._labeller is not None:
-            raw = kp, conf
+            raw, last = (kp, conf), self.exchanged  # last: the labelling of the last frame
             kp, conf, self.exchanged = self._labeller.update(
                 kp, conf, cands.points3d[p], cands.has_depth[p]
             )
@@ -763,10 +763,9 @@ class Tracker:
                 self._veto &= self.exchanged  # a veto ends with the exchange it vetoed
                 self.exchanged = self.exchanged & ~self._veto
                 self._since_judged = np.where(self.exchanged, self._since_judged + 1, 0)
-                self._new_exchanged = (self.exchanged & ~self._last_exchanged) | (
+                self._new_exchanged = (self.exchanged & ~last) | (
                     self._since_judged > self.sides.online_rejudge
                 )
-                self._last_exchanged = self.exchanged.copy()
                 kp, conf = self._labeller.relabel(*raw, self.exchanged)
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]
@@ -942,12 +941,11 @@ class Tracker:
             new = self._new_exchanged.copy()
             if not new.any() or self._person < 0:
                 return out
+            self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
             arb = _OnlineArbitration(left=self._online_frames(), exchanged=first)
             self._restore_online(before)
             self._veto = self._veto | new
-            self._since_judged[new] = 0
-            arb.exchanged.snapshot[-1][new] = 0
             out = self._update_once(depth, kp2d, conf)
             arb.detected = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
             self._arbitration = arb
@@ -975,21 +973,18 @@ class Tracker:
             self._snapshot(), self._window, self._window_frames.copy(),
             self._window_valid.copy(), self.lagged, self._online_refine_pending,
             self._online_tracked, dict(self._online_kept), self._person, self.exchanged.copy(),
-            self._veto.copy(), self._last_exchanged.copy(), self._depth_fit,
-            self._since_judged.copy(),
+            self._veto.copy(), self._since_judged.copy(), self._depth_fit,
         )  # fmt: skip
 
     def _restore_online(self, snap: tuple) -> None:
         self._restore(snap[0])
         (
             self._window, frames, valid, self.lagged, self._online_refine_pending,
-            self._online_tracked, kept, self._person, exchanged, veto, last, self._depth_fit,
-            since,
+            self._online_tracked, kept, self._person, exchanged, veto, since, self._depth_fit,
         ) = snap[1:]  # fmt: skip
-        self._since_judged = since.copy()
         self._window_frames, self._window_valid = frames.copy(), valid.copy()
         self._online_kept, self.exchanged = dict(kept), exchanged.copy()
-        self._veto, self._last_exchanged = veto.copy(), last.copy()
+        self._veto, self._since_judged = veto.copy(), since.copy()
 
     def _online_refine_frame(self, est: FrameEstimate) -> None:
         """Online body shape from depth, causally: keep the best-observed tracked frame of
