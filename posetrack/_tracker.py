@@ -928,8 +928,8 @@ class Tracker:
     def _update_arbitrated(self, depth, kp2d, conf) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` online with :attr:`SideSettings.arbitrate`: where the forward
         labelling newly reads a group exchanged, the frame and the next ones (``online_frames``
-        in all; by default the lag + 1, so no pose of the stretch is published before the
-        decision) are tracked twice from the same state, exchanged and as detected, and the
+        in all; by default 2, at most lag + 1, so no pose of the stretch is published before
+        the decision) are tracked twice from the same state, exchanged and as detected, and the
         reading whose poses score the lower Delta summed is kept (:func:`prefer_exchanged`);
         an exchange the depth rejected stays vetoed until the labelling reads the group as
         detected again. Until the decision the leading reading's state is the tracker's."""
@@ -965,7 +965,7 @@ class Tracker:
 
     def _online_frames(self) -> int:
         n = self.sides.online_frames
-        return self.lag + 1 if n is None else int(n)
+        return min(2, self.lag + 1) if n is None else int(n)
 
     def _online_snapshot(self) -> tuple:
         """:meth:`_snapshot` plus what the online mode carries from frame to frame."""
