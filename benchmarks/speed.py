@@ -822,7 +822,8 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
         tr3.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
     online_ms = 1e3 * float(np.median(tr3.motion_times[1:]))
     online_step = 1e3 * float(np.median(tr3.step_times))
-    # The left/right judgement tracks the first lag + 1 frames of each exchange twice.
+    # The left/right judgement tracks the first frames of each exchange twice
+    # (SideSettings.online_frames).
     twice = sum(stop - start for start, stop, *_ in tr3.side_spans) / T
     # The smoother works in windows of 96 frames (80 new each): a recording of 176 frames
     # (the T frames played forward and back) is two windows, the steady-state cost per frame.

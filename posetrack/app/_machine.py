@@ -7,7 +7,8 @@ import platform
 
 
 def machine_info() -> dict[str, object]:
-    """CPU model, core count, JAX/jaxlib/NumPy/Python versions, backend and XLA/thread settings."""
+    """CPU model, core count, JAX/jaxlib/NumPy/Python versions, backend, the first device's kind
+    (``"cpu"``, ``"NVIDIA H200"``, ...) and XLA/thread settings."""
     import jax
     import numpy as np
 
@@ -32,6 +33,7 @@ def machine_info() -> dict[str, object]:
         "jax": jax.__version__,
         "jaxlib": jaxlib_version,
         "backend": jax.default_backend(),
+        "device": jax.devices()[0].device_kind,
         "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
         "threads": {
             k: os.environ[k]
@@ -46,7 +48,8 @@ def machine_info() -> dict[str, object]:
 def machine_summary() -> str:
     """One line: ``AMD EPYC, 2 cores, jax 0.10.2 (cpu), XLA_FLAGS=''``."""
     m = machine_info()
+    backend = m["backend"] if m["backend"] == "cpu" else f"{m['backend']}: {m['device']}"
     return (
-        f"{m['cpu']}, {m['cores']} cores, jax {m['jax']} ({m['backend']}), "
+        f"{m['cpu']}, {m['cores']} cores, jax {m['jax']} ({backend}), "
         f"XLA_FLAGS='{m['XLA_FLAGS']}'"
     )
