@@ -62,9 +62,9 @@ stretches (benchmarks/motion.py records the share of frames).
 
 **Online the depth arbitrates too** (:meth:`Tracker.update`, ``mode="online"``): only the
 forward pass exists, so the stretch is not known in advance. Where the forward pass newly
-reads a group exchanged, that frame and the next one (:attr:`SideSettings.online_frames`; by
-default 2, or 1 at lag 0: at most lag + 1 frames, so the decision still comes before the
-stretch's first pose is published) are tracked twice from the same state, exchanged and as
+reads a group exchanged, that frame and the next ones (:attr:`SideSettings.online_frames`;
+by default the lag + 1, the most for which the decision still comes before the stretch's
+first pose is published) are tracked twice from the same state, exchanged and as
 detected, and the reading with the lower Delta summed is kept. An exchange the depth refused
 stays refused while the forward pass reads it; one it kept is judged again after
 :attr:`SideSettings.online_rejudge` frames (the forward pass holds a misreading until the
@@ -73,9 +73,10 @@ clean / occluded) the online tracker without relabelling gave 35.3 / 53.2 standa
 / 89.0 wide, the forward reading taken as read 31.8 / 55.5 and 49.9 / 74.9, arbitrated 31.0
 / 51.8 and 56.5 / 73.2 (judged once per exchange, never again: standard occluded 53.3; again
 after 8 frames instead of 16: 31.0 / 50.5 and 57.4 / 73.4, at more cost; all with lag + 1 =
-4 frames judged). Judging 1, 2, 3 or 4 frames gave D 52.6 / 52.0 / 53.5 / 53.1 mm averaged
-over the four (no relabelling 63.2), the same within the clips' noise: 2 is the default (the
-lowest), half the second tracking of 4.
+4 frames judged). Judging 2 frames instead of 4 gave the same D on those clips within their
+noise (one clip decided it); on 42 tuning clips (standard 100-123, wide 100-117) the means of
+the four (generator, occlusion) D's were 64.1 mm judging 2 frames, 63.3 judging 4, 71.3
+without relabelling, so lag + 1 stays the default (benchmarks/README.md).
 
 The tracker relabels by default offline and online (``sides="auto"``; ``sides=None``,
 ``posetrack track --no-fix-sides`` turn it off); per-frame (the paper's tracker) it does not.
@@ -144,10 +145,9 @@ class SideSettings:
     """Online (:meth:`Tracker.update`, with :attr:`arbitrate`): how many frames, from the
     first one the forward pass newly reads a group exchanged, are tracked both ways before
     the depth decides. At most the tracker's lag + 1 keeps the decision before the stretch's
-    first pose is published. ``None``: 2, or 1 at lag 0 (min(2, lag + 1)). On the tuning clips
-    (seeds 100-107 standard, 100-105 wide, lag 3; D mm averaged over standard and wide, clean
-    and occluded) 1, 2, 3 and 4 frames gave 52.6, 52.0, 53.5 and 53.1 (no relabelling 63.2),
-    the same within the clips' noise; 2 frames cost half the second tracking of 4."""
+    first pose is published. ``None``: the lag + 1. Fewer frames cost less (2 at lag 3: half
+    the second tracking) and decide on less evidence: on 42 tuning clips 2 frames gave a mean
+    D 0.8 mm above 4 (benchmarks/README.md)."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the

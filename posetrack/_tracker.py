@@ -890,9 +890,10 @@ class Tracker:
         the body shape (a few seconds on a CPU, once; :attr:`refine_s`; while a left/right
         stretch is judged, the call after the judgement). With ``sides``
         (online's default), a frame in which the left/right labelling newly reads a group
-        exchanged starts a stretch of ``lag + 1`` frames tracked both ways (two steps per
-        frame); each call then returns the leading reading's estimate, and the last one
-        keeps the reading whose Delta summed is lower (:attr:`side_spans`).
+        exchanged starts a stretch of :attr:`SideSettings.online_frames` frames (by default
+        lag + 1) tracked both ways (two steps per frame); each call then returns the leading
+        reading's estimate, and the last one keeps the reading whose Delta summed is lower
+        (:attr:`side_spans`).
 
         ``depth``: (H, W) uint16 in sensor units (``depth_scale`` per metre) or float metres;
         ``keypoints2d``: (18, 2) pixels for one person or (P, 18, 2) for the P people detected
@@ -928,8 +929,8 @@ class Tracker:
     def _update_arbitrated(self, depth, kp2d, conf) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` online with :attr:`SideSettings.arbitrate`: where the forward
         labelling newly reads a group exchanged, the frame and the next ones (``online_frames``
-        in all; by default 2, at most lag + 1, so no pose of the stretch is published before
-        the decision) are tracked twice from the same state, exchanged and as detected, and the
+        in all; by default the lag + 1, so no pose of the stretch is published before the
+        decision) are tracked twice from the same state, exchanged and as detected, and the
         reading whose poses score the lower Delta summed is kept (:func:`prefer_exchanged`);
         an exchange the depth rejected stays vetoed until the labelling reads the group as
         detected again. Until the decision the leading reading's state is the tracker's."""
@@ -965,7 +966,7 @@ class Tracker:
 
     def _online_frames(self) -> int:
         n = self.sides.online_frames
-        return min(2, self.lag + 1) if n is None else int(n)
+        return self.lag + 1 if n is None else int(n)
 
     def _online_snapshot(self) -> tuple:
         """:meth:`_snapshot` plus what the online mode carries from frame to frame."""

@@ -411,7 +411,7 @@ def _arm_swap(clip, frames):
 
 def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     """Online with ``sides``, the stretch the forward labelling newly reads exchanged is
-    tracked both ways (2 frames by default) and the depth keeps the exchange; the body-shape
+    tracked both ways for lag + 1 frames and the depth keeps the exchange; the body-shape
     refinement that comes due meanwhile runs after the decision, on frames seen before it."""
     sw = np.arange(12, 28)
     kp, conf = _arm_swap(clip, sw)
@@ -419,7 +419,8 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=refine)
     fixed = tr.run(clip.depth, kp, conf)
     raw = pt.track(clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None)
-    assert [s[:2] for s in tr.side_spans][:1] == [(12, 14)], tr.side_spans
+    k = pt.ONLINE_LAG + 1
+    assert [s[:2] for s in tr.side_spans][:1] == [(12, 12 + k)], tr.side_spans
     start, stop, delta_as, delta_ex, kept = tr.side_spans[0]
     assert kept and delta_ex < delta_as
     seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
@@ -433,9 +434,10 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
 
 def test_online_the_depth_refuses_a_misreading_before_it_is_published(clip, modes, monkeypatch):
     """Online, a forward labelling that misreads correct arm labels in frames 10-19 (made to
-    here; 2D continuity does on occluded side views) is tracked both ways for lag + 1 frames
-    (the most that still decide before publication), the depth refuses it and the exchange stays vetoed while it is read: the track is the
-    one without relabelling, bit for bit. Taken as read, it costs accuracy."""
+    here; 2D continuity does on occluded side views) is tracked both ways (here over 2
+    frames, fewer than the default lag + 1), the depth refuses it and the exchange stays
+    vetoed while it is read: the track is the one without relabelling, bit for bit. Taken
+    as read, it costs accuracy."""
     update = pt.SideLabeller.update
 
     def misread(self, keypoints2d, confidence, points3d, has_depth):
@@ -448,7 +450,7 @@ def test_online_the_depth_refuses_a_misreading_before_it_is_published(clip, mode
 
     monkeypatch.setattr(pt.SideLabeller, "update", misread)
     args = (clip.depth, clip.keypoints2d, clip.confidence)
-    k = pt.ONLINE_LAG + 1
+    k = 2
     sides = pt.SideSettings(online_frames=k)
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
     judged = tr.run(*args)
