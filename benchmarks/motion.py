@@ -114,7 +114,8 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
             cost["online_ms"] = float(np.median(on_tr.motion_times[1:]) * 1000)
             cost["online_step_ms"] = float(np.median(on_tr.step_times) * 1000)
             cost["online_refine_s"] = on_tr.refine_s
-            # The online arbitration tracks the first lag + 1 frames of each exchange twice.
+            # The online arbitration tracks the first frames of each exchange twice
+            # (SideSettings.online_frames: lag + 1 by default).
             cost["online_retracked_share"] = _tracked_twice(on_tr) / frames
     return {"truth": seq.joints3d, "est": out, "cost": cost}
 

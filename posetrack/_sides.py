@@ -64,19 +64,21 @@ stretches (benchmarks/motion.py records the share of frames).
 forward pass exists, so the stretch is not known in advance. Where the forward pass newly
 reads a group exchanged, that frame and the next ones (:attr:`SideSettings.online_frames`;
 by default the lag + 1, the most for which the decision still comes before the stretch's
-first pose is published) are tracked twice from the same state, exchanged and as
-detected, and the reading with the lower Delta summed is kept. An exchange the depth refused
-stays refused while the forward pass reads it; one it kept is judged again after
-:attr:`SideSettings.online_rejudge` frames (the forward pass holds a misreading until the
-next real jump). On the tuning clips (seeds 100-107 standard, 100-105 wide; lag 3; D mm
-clean / occluded) the online tracker without relabelling gave 35.3 / 53.2 standard and 75.2
-/ 89.0 wide, the forward reading taken as read 31.8 / 55.5 and 49.9 / 74.9, arbitrated 31.0
-/ 51.8 and 56.5 / 73.2 (judged once per exchange, never again: standard occluded 53.3; again
-after 8 frames instead of 16: 31.0 / 50.5 and 57.4 / 73.4, at more cost; all with lag + 1 =
-4 frames judged). Judging 2 frames instead of 4 gave the same D on those clips within their
-noise (one clip decided it); on 42 tuning clips (standard 100-123, wide 100-117) the means of
-the four (generator, occlusion) D's were 64.1 mm judging 2 frames, 63.3 judging 4, 71.3
-without relabelling, so lag + 1 stays the default (benchmarks/README.md).
+first pose is published) are tracked twice from the same state, exchanged and as detected,
+and the reading with the lower Delta summed is kept (a group newly read exchanged while
+another is judged stays as detected until that judgement ends, then is judged on its own).
+An exchange the depth refused stays refused while the forward pass reads it; one it kept is
+judged again after :attr:`SideSettings.online_rejudge` frames (the forward pass holds a
+misreading until the next real jump). On the tuning clips (seeds 100-107 standard, 100-105
+wide; lag 3; D mm clean / occluded) the online tracker without relabelling gave 35.3 / 53.2
+standard and 75.2 / 89.0 wide, the forward reading taken as read 31.8 / 55.5 and 49.9 /
+74.9, arbitrated 31.0 / 51.8 and 56.5 / 73.2 (judged once per exchange, never again:
+standard occluded 53.3; again after 8 frames instead of 16: 31.0 / 50.5 and 57.4 / 73.4, at
+more cost; all with lag + 1 = 4 frames judged). Judging 2 frames instead of 4 gave the same
+D on those clips within their noise (one clip decided it); on 42 tuning clips (standard
+100-123, wide 100-117) the means of the four (generator, occlusion) D's were 64.1 mm judging
+2 frames, 63.3 judging 4, 71.3 without relabelling, so lag + 1 stays the default
+(benchmarks/README.md).
 
 The tracker relabels by default offline and online (``sides="auto"``; ``sides=None``,
 ``posetrack track --no-fix-sides`` turn it off); per-frame (the paper's tracker) it does not.

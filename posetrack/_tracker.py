@@ -762,10 +762,13 @@ class Tracker:
             elif self._arbitrates_online:
                 self._veto &= self.exchanged  # a veto ends with the exchange it vetoed
                 self.exchanged = self.exchanged & ~self._veto
+                fresh = self.exchanged & ~last
+                if self._arbitration is not None:
+                    # A judgement is in flight: a group newly read exchanged inside it stays
+                    # as detected and is judged on its own once this judgement ends.
+                    self.exchanged, fresh = self.exchanged & ~fresh, np.zeros_like(fresh)
                 self._since_judged = np.where(self.exchanged, self._since_judged + 1, 0)
-                self._new_exchanged = (self.exchanged & ~last) | (
-                    self._since_judged > self.sides.online_rejudge
-                )
+                self._new_exchanged = fresh | (self._since_judged > self.sides.online_rejudge)
                 kp, conf = self._labeller.relabel(*raw, self.exchanged)
         if self.follow is not None and self.follow.mask_others and len(cands) > 1:
             own = cands.has_depth[p]

@@ -432,23 +432,37 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     assert n_fixed < pt.swapped_limb_frames(raw.keypoints3d, gt)
 
 
-def test_online_the_depth_refuses_a_misreading_before_it_is_published(clip, modes, monkeypatch):
-    """Online, a forward labelling that misreads correct arm labels in frames 10-19 (made to
-    here; 2D continuity does on occluded side views) is tracked both ways (here over 2
-    frames, fewer than the default lag + 1), the depth refuses it and the exchange stays
-    vetoed while it is read: the track is the one without relabelling, bit for bit. Taken
-    as read, it costs accuracy."""
+def _misread(monkeypatch, clip, arms: range, legs: range) -> None:
+    """Make the forward labelling read correct labels exchanged: arms in frames ``arms``, legs
+    in frames ``legs`` (2D continuity does so on occluded side views)."""
     update = pt.SideLabeller.update
 
     def misread(self, keypoints2d, confidence, points3d, has_depth):
         kp, conf, ex = update(self, keypoints2d, confidence, points3d, has_depth)
         t = int(np.argmin(np.abs(clip.keypoints2d - keypoints2d).sum(axis=(1, 2))))
-        if 10 <= t < 20:
-            ex = np.array([True, False])
+        if t in arms or t in legs:
+            ex = np.array([t in arms, t in legs])
             kp, conf = self.relabel(keypoints2d, confidence, ex)
         return kp, conf, ex
 
     monkeypatch.setattr(pt.SideLabeller, "update", misread)
+
+
+@pytest.fixture(scope="module")
+def online_plain(clip):
+    """Online, no left/right relabelling, no body-shape refinement."""
+    args = (clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics)
+    return pt.track(*args, mode="online", sides=None, refine=None)
+
+
+def test_online_the_depth_refuses_a_misreading_before_it_is_published(
+    clip, online_plain, monkeypatch
+):
+    """Online, a forward labelling that misreads correct arm labels in frames 10-19 is tracked
+    both ways (here over 2 frames, fewer than the default lag + 1), the depth refuses it and
+    the exchange stays vetoed while it is read: the track is the one without relabelling, bit
+    for bit. Taken as read, it costs accuracy."""
+    _misread(monkeypatch, clip, arms=range(10, 20), legs=range(0))
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     k = 2
     sides = pt.SideSettings(online_frames=k)
@@ -457,10 +471,23 @@ def test_online_the_depth_refuses_a_misreading_before_it_is_published(clip, mode
     assert [s[:2] for s in tr.side_spans] == [(10, 10 + k)], tr.side_spans
     assert not tr.side_spans[0][-1]
     assert not judged.exchanged.any()
-    plain = pt.track(*args, clip.intrinsics, mode="online", sides=None, refine=None)
-    np.testing.assert_array_equal(judged.keypoints3d, plain.keypoints3d)
+    np.testing.assert_array_equal(judged.keypoints3d, online_plain.keypoints3d)
     taken = pt.track(
         *args, clip.intrinsics, mode="online", refine=None,
         sides=pt.SideSettings(arbitrate=False),
     )  # fmt: skip
     _misreading_taken_as_read_costs(taken, taken.keypoints3d, judged.keypoints3d, clip.joints3d)
+
+
+def test_online_a_misreading_inside_a_judgement_waits_for_its_own(clip, online_plain, monkeypatch):
+    """A group newly read exchanged while another group's exchange is being judged (legs from
+    frame 12, inside the judgement of the arms over frames 10-13) is not taken unjudged: it
+    stays as detected until that judgement ends and is then judged on its own. Both
+    misreadings are refused, and the track is the one without relabelling, bit for bit."""
+    _misread(monkeypatch, clip, arms=range(10, 20), legs=range(12, 20))
+    tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=None)
+    judged = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
+    k = pt.ONLINE_LAG + 1
+    assert [s[:2] for s in tr.side_spans] == [(10, 10 + k), (10 + k, 10 + 2 * k)], tr.side_spans
+    assert not any(s[-1] for s in tr.side_spans) and not judged.exchanged.any()
+    np.testing.assert_array_equal(judged.keypoints3d, online_plain.keypoints3d)
