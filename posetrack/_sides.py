@@ -77,7 +77,8 @@ standard occluded 53.3; again after 8 frames instead of 16: 31.0 / 50.5 and 57.4
 more cost; all with lag + 1 = 4 frames judged). Judging 2 frames instead of 4 gave the same
 D on those clips within their noise (one clip decided it); on 42 tuning clips (standard
 100-123, wide 100-117) the means of the four (generator, occlusion) D's were 64.1 mm judging
-2 frames, 63.3 judging 4, 71.3 without relabelling, so lag + 1 stays the default
+2 frames, 63.3 judging 4, 71.3 without relabelling, so lag + 1 stays the default; 62.8 at
+lag + 1 once a group newly read inside another's judgement waited for its own
 (benchmarks/README.md).
 
 The tracker relabels by default offline and online (``sides="auto"``; ``sides=None``,
@@ -149,7 +150,8 @@ class SideSettings:
     the depth decides. At most the tracker's lag + 1 keeps the decision before the stretch's
     first pose is published. ``None``: the lag + 1. Fewer frames cost less (2 at lag 3: half
     the second tracking) and decide on less evidence: on 42 tuning clips 2 frames gave a mean
-    D 0.8 mm above 4 (benchmarks/README.md)."""
+    D 0.8 mm above 4 (benchmarks/README.md; measured before the fix of judgements that
+    overlap)."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
