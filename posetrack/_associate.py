@@ -33,7 +33,6 @@ stays one jitted call.
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from typing import Literal
 
 import numpy as np
@@ -60,10 +59,21 @@ _BONES = (
 
 def quiet_nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
     """``np.nanmedian`` without the all-NaN warning (an all-NaN slice gives NaN: nothing
-    measured, which callers handle)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        return np.nanmedian(a, axis=axis)
+    measured, which callers handle), the same values bit for bit.
+
+    A sort instead of ``np.nanmedian``'s masked-array path, which costs about half a
+    millisecond per call on the small arrays of a frame (three calls a frame, per person).
+    """
+    a = np.asarray(a)
+    if not np.issubdtype(a.dtype, np.floating):
+        a = a.astype(np.float64)
+    s = np.moveaxis(np.sort(a, axis=axis), axis, -1)  # NaNs sort last
+    n = np.count_nonzero(~np.isnan(s), axis=-1)
+    lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
+    hi = np.take_along_axis(s, np.minimum(n // 2, s.shape[-1] - 1)[..., None], axis=-1)[..., 0]
+    # NumPy's median of an even count: the two middle values summed, halved, in their dtype.
+    med = np.true_divide(lo + hi, 2, dtype=s.dtype)
+    return np.where(n > 0, med, np.nan).astype(s.dtype)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -59,6 +59,16 @@ from ._step import FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
 
+
+def _host_f32(x):
+    """``x`` as a float32 argument of a compiled program: a float32 JAX array as it is, anything
+    else converted on the host (``jnp.asarray`` would put it on the device and convert it there,
+    one more dispatched operation per argument and frame). The same values either way."""
+    if isinstance(x, jax.Array) and x.dtype == _DTYPE:
+        return x
+    return np.asarray(x, np.float32)
+
+
 #: The pose pushed into the online window for a frame outside any track (never published).
 _NO_POSE = body.facing_camera_params_np(2.5)
 
@@ -573,9 +583,9 @@ class Tracker:
             kps, params, valid = est.keypoints3d, est.params, True
         t0 = time.perf_counter()
         self._window, pose, pose_kps = online_update_program(
-            self.motion, self.shape, jnp.asarray(self.fps, _DTYPE), self._window,
-            jnp.asarray(kps, _DTYPE), jnp.asarray(conf, _DTYPE), jnp.asarray(params, _DTYPE),
-            jnp.asarray(valid), self.lag,
+            self.motion, self.shape, _host_f32(self.fps), self._window,
+            _host_f32(kps), _host_f32(conf), _host_f32(params), np.asarray(valid, bool),
+            self.lag,
         )  # fmt: skip
         self._window_frames = np.roll(self._window_frames, -1)
         self._window_frames[-1] = self._frames_seen - 1

@@ -15,6 +15,7 @@ import sys
 import threading
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -62,6 +63,37 @@ def test_stored_program_is_reused_across_instances_and_gives_the_same_bits(store
     for a, b in ((out1, out2), (out1, plain)):
         assert np.array_equal(np.asarray(a["sum"]), np.asarray(b["sum"]))
         assert int(a["n"]) == int(b["n"])
+
+
+class _Gains(eqx.Module):
+    weight: float  # a Python scalar leaf, as TrackerConfig's floats
+    offset: jax.Array
+
+
+def _gained(g: _Gains, x):
+    return g.weight * x + g.offset
+
+
+def test_arguments_kept_by_identity_are_never_stale():
+    # A Program keeps small immutable modules flattened (found again by identity) and reads
+    # everything else afresh: results must equal jax.jit's on every call, a NumPy array
+    # changed in place included, and the kept arguments stay bounded.
+    prog = Program(_gained, "gained")
+    plain = jax.jit(_gained)
+    g = _Gains(weight=0.5, offset=jnp.arange(3.0))
+    x = np.ones(3, np.float32)
+    for k in range(3):
+        x[:] = k  # same NumPy object, new values
+        np.testing.assert_array_equal(np.asarray(prog(g, x)), np.asarray(plain(g, x)))
+    other = _Gains(weight=2.0, offset=jnp.zeros(3))  # a new module: its own values
+    np.testing.assert_array_equal(np.asarray(prog(other, x)), np.asarray(plain(other, x)))
+    assert id(g) in prog._args and prog._cache_size() == 1  # kept, one compiled program
+    for k in range(3 * _programs._ARGS_KEPT):
+        prog(_Gains(weight=float(k), offset=jnp.ones(3)), x)
+    assert len(prog._args) <= _programs._ARGS_KEPT
+    big = _Gains(weight=1.0, offset=jnp.zeros(_programs._ARG_SIZE_KEPT + 1))
+    prog(big, np.ones(_programs._ARG_SIZE_KEPT + 1, np.float32))
+    assert id(big) not in prog._args  # a depth-map-sized argument is not held
 
 
 def test_anything_that_changes_the_program_gets_a_new_file(store, monkeypatch):
