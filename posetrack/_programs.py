@@ -456,19 +456,21 @@ def _finish_building() -> None:
             thread.join()
 
 
-def prepare_in_background(jobs: Sequence[tuple[Program, tuple]]) -> None:
+def prepare_in_background(jobs: Sequence[tuple[Program, tuple] | Callable[[], list]]) -> None:
     """``program.prepare(*args)`` for each ``(program, args)``, one after another, in a daemon
-    thread; returns at once. A caller that needs one of them meanwhile waits for it. A failure
+    thread; returns at once. A job may also be a function returning such pairs, called in the
+    thread (when working out the arguments' shapes is itself tracing work). A caller that needs one of them meanwhile waits for it. A failure
     ends the thread quietly: it is raised where the program is needed (that caller builds it
     again), not printed by the thread. At interpreter exit the thread finishes the program in
     hand and stops (:func:`_finish_building`)."""
 
     def work():
-        for prog, args in jobs:
-            if _LEAVING.is_set():
-                return
+        for job in jobs:
             try:
-                prog.prepare(*args)
+                for prog, args in job() if callable(job) else [job]:
+                    if _LEAVING.is_set():
+                        return
+                    prog.prepare(*args)
             except Exception:
                 return
 

@@ -679,8 +679,11 @@ class Tracker:
                 f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
             )))  # fmt: skip
         if self.refine is not None and not self.refine.crop:
-            later.extend(refine_programs(
-                self._refine_settings(), self.config, shape, intr, self.refine.frames
+            # Working out their argument shapes traces the observation (about 1 s): done in
+            # the builder thread, not before the first frame.
+            later.append(partial(
+                refine_programs, self._refine_settings(), self.config, shape, intr,
+                self.refine.frames,
             ))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
         if self._batched is not None:  # track_many: the batcher compiles the batched step
@@ -688,8 +691,9 @@ class Tracker:
             prepare_in_background([*jobs, *later])
             return
         if not background:
-            for prog, args in (*jobs, (step, step_args), *later):
-                prog.prepare(*args)
+            for job in (*jobs, (step, step_args), *later):
+                for prog, args in job() if callable(job) else [job]:
+                    prog.prepare(*args)
             return
         # The step (the big program), then the offline motion model and the body-shape
         # refinement (the first frames do not need them) in one thread. Tracing holds the
