@@ -459,9 +459,9 @@ def _finish_building() -> None:
 def prepare_in_background(jobs: Sequence[tuple[Program, tuple] | Callable[[], list]]) -> None:
     """``program.prepare(*args)`` for each ``(program, args)``, one after another, in a daemon
     thread; returns at once. A job may also be a function returning such pairs, called in the
-    thread (when working out the arguments' shapes is itself tracing work). A caller that needs one of them meanwhile waits for it. A failure
-    ends the thread quietly: it is raised where the program is needed (that caller builds it
-    again), not printed by the thread. At interpreter exit the thread finishes the program in
+    thread (when working out the arguments' shapes is itself tracing work). A caller that
+    needs one of them meanwhile waits for it. A failure ends the thread quietly: it is raised
+    where the program is needed (that caller builds it again), not printed by the thread. At interpreter exit the thread finishes the program in
     hand and stops (:func:`_finish_building`)."""
 
     def work():
