@@ -461,8 +461,9 @@ def prepare_in_background(jobs: Sequence[tuple[Program, tuple] | Callable[[], li
     thread; returns at once. A job may also be a function returning such pairs, called in the
     thread (when working out the arguments' shapes is itself tracing work). A caller that
     needs one of them meanwhile waits for it. A failure ends the thread quietly: it is raised
-    where the program is needed (that caller builds it again), not printed by the thread. At interpreter exit the thread finishes the program in
-    hand and stops (:func:`_finish_building`)."""
+    where the program is needed (that caller builds it again), not printed by the thread. At
+    interpreter exit the thread finishes the program in hand and stops
+    (:func:`_finish_building`)."""
 
     def work():
         for job in jobs:
