@@ -68,12 +68,14 @@ def quiet_nanmedian(a: np.ndarray, axis: int) -> np.ndarray:
     if not np.issubdtype(a.dtype, np.floating):
         a = a.astype(np.float64)
     s = np.moveaxis(np.sort(a, axis=axis), axis, -1)  # NaNs sort last
+    if s.shape[-1] == 0:
+        return np.full(s.shape[:-1], np.nan, s.dtype)
     n = np.count_nonzero(~np.isnan(s), axis=-1)
+    # All-NaN slices (n = 0) read index 0, a NaN: the NaN result without a special case.
     lo = np.take_along_axis(s, np.maximum((n - 1) // 2, 0)[..., None], axis=-1)[..., 0]
     hi = np.take_along_axis(s, np.minimum(n // 2, s.shape[-1] - 1)[..., None], axis=-1)[..., 0]
     # NumPy's median of an even count: the two middle values summed, halved, in their dtype.
-    med = np.true_divide(lo + hi, 2, dtype=s.dtype)
-    return np.where(n > 0, med, np.nan).astype(s.dtype)
+    return np.true_divide(lo + hi, 2, dtype=s.dtype)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -456,19 +456,33 @@ def _finish_building() -> None:
             thread.join()
 
 
-def prepare_in_background(jobs: Sequence[tuple[Program, tuple] | Callable[[], list]]) -> None:
-    """``program.prepare(*args)`` for each ``(program, args)``, one after another, in a daemon
-    thread; returns at once. A job may also be a function returning such pairs, called in the
-    thread (when working out the arguments' shapes is itself tracing work). A caller that
-    needs one of them meanwhile waits for it. A failure ends the thread quietly: it is raised
-    where the program is needed (that caller builds it again), not printed by the thread. At
-    interpreter exit the thread finishes the program in hand and stops
-    (:func:`_finish_building`)."""
+#: What :func:`prepare_now` and :func:`prepare_in_background` take: ``(program, args)``, or a
+#: function returning such pairs (when working out the arguments' shapes is itself tracing).
+Job = tuple[Program, tuple] | Callable[[], list]
+
+
+def _pairs(job: Job) -> list:
+    return job() if callable(job) else [job]
+
+
+def prepare_now(jobs: Sequence[Job]) -> None:
+    """``program.prepare(*args)`` for each job, here and now, in order."""
+    for job in jobs:
+        for prog, args in _pairs(job):
+            prog.prepare(*args)
+
+
+def prepare_in_background(jobs: Sequence[Job]) -> None:
+    """:func:`prepare_now` in a daemon thread (a function job is called there); returns at
+    once. A caller that needs one of the programs meanwhile waits for it. A failure ends the
+    thread quietly: it is raised where the program is needed (that caller builds it again),
+    not printed by the thread. At interpreter exit the thread finishes the program in hand
+    and stops (:func:`_finish_building`)."""
 
     def work():
         for job in jobs:
             try:
-                for prog, args in job() if callable(job) else [job]:
+                for prog, args in _pairs(job):
                     if _LEAVING.is_set():
                         return
                     prog.prepare(*args)

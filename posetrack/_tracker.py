@@ -37,7 +37,7 @@ from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._programs import Program, prepare_in_background, program
+from ._programs import Program, prepare_in_background, prepare_now, program
 from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import (
@@ -691,9 +691,7 @@ class Tracker:
             prepare_in_background([*jobs, *later])
             return
         if not background:
-            for job in (*jobs, (step, step_args), *later):
-                for prog, args in job() if callable(job) else [job]:
-                    prog.prepare(*args)
+            prepare_now([*jobs, (step, step_args), *later])
             return
         # The step (the big program), then the offline motion model and the body-shape
         # refinement (the first frames do not need them) in one thread. Tracing holds the
