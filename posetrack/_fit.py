@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jax.custom_derivatives import SymbolicZero
 from jaxtyping import Array, Bool, Float, Int
 
@@ -22,6 +21,11 @@ from ._body import BodyShape, normalize_params
 from ._camera import Intrinsics
 from ._observe import Landmarks
 from ._residuals import ResidualSettings, landmark_residuals, pixel_scale, regulariser_residuals
+
+# optimistix and lineax are imported where a fit is traced, not here: a warm start loads its
+# programs from the cache and never traces one, and importing them costs it ~0.4 s.
+if TYPE_CHECKING:
+    import optimistix as optx
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +58,9 @@ class FitSettings:
             )
 
     def solver(self) -> optx.LevenbergMarquardt:
+        import lineax as lx
+        import optimistix as optx
+
         linear = lx.Normal(lx.Cholesky()) if self.linear_solver == "cholesky" else lx.QR()
         return optx.LevenbergMarquardt(rtol=self.rtol, atol=self.atol, linear_solver=linear)
 
@@ -184,6 +191,8 @@ def fit_pose(
         use3d=use3d, use2d=use2d, residuals=settings.residuals,
     )  # fmt: skip
     _, _, _, use3d, use2d, mpp, _, _ = args
+    import optimistix as optx
+
     sol = optx.least_squares(
         fit_residuals,
         settings.solver(),

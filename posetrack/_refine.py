@@ -11,7 +11,6 @@ optimistix' ``jac="fwd"`` linearisation needs.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import optimistix as optx
 
 from ._body import BodyShape, capsules, normalize_params
 from ._camera import Intrinsics
@@ -58,6 +57,8 @@ def refine_pose(
         residuals=settings.residuals,
     )  # fmt: skip
     args = (fit_args, shape, z_d, z_fg, score_intrinsics, sharpness, d_M, weight, known)
+    import optimistix as optx  # on first use, as in ``_fit``
+
     sol = optx.least_squares(
         _refine_residuals,
         settings.solver(),
