@@ -143,7 +143,9 @@ class BodyShape(eqx.Module):
             if not np.isfinite(v) or (v <= 0 and name != "shoulder_drop"):
                 raise ValueError(f"BodyShape: {name} must be finite and positive, got {value!r}")
             values[name] = v
-        return BodyShape(**{k: jnp.asarray(v, dtype=dtype or float) for k, v in values.items()})
+        # Converted on the host (jnp.asarray would compile a conversion program: start-up).
+        dtype = jax.dtypes.canonicalize_dtype(dtype or float)
+        return BodyShape(**{k: jax.device_put(np.asarray(v, dtype)) for k, v in values.items()})
 
     def scaled(self, factor: float | Array) -> BodyShape:
         """Every length and radius multiplied by ``factor`` (a taller or smaller person)."""

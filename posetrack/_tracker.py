@@ -69,6 +69,13 @@ def _host_f32(x):
     return np.asarray(x, np.float32)
 
 
+def _device_f32(x) -> jax.Array:
+    """``x`` as a float32 JAX array, converted on the host and copied to the device: the values
+    of ``jnp.asarray(x, float32)`` without compiling (or loading from the cache) a conversion
+    program per input type, which cost a new tracker ~0.1 s of a warm start."""
+    return jax.device_put(np.asarray(x, np.float32))
+
+
 #: The pose pushed into the online window for a frame outside any track (never published).
 _NO_POSE = body.facing_camera_params_np(2.5)
 
@@ -521,14 +528,14 @@ class Tracker:
             raise TypeError(
                 f"Tracker: config must be posetrack.TrackerConfig, got {type(self.config)}"
             )
-        self.intrinsics = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
+        self.intrinsics = jax.tree.map(_device_f32, intrinsics)
         self.depth_scale = float(depth_scale)
         self.shape = (
-            None if shape is None else jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
+            None if shape is None else jax.tree.map(_device_f32, shape)
         )
         self._key = jax.random.PRNGKey(seed)
         self._state: TrackState | None = None
-        self._floor = jnp.asarray(NO_FLOOR, _DTYPE)
+        self._floor = _device_f32(NO_FLOOR)
         self._lost_run = 0
         self._ever_initialized = False
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
@@ -723,7 +730,7 @@ class Tracker:
             raise ValueError("estimate_shape: no frames given")
         # With fewer than 3 frames a length has fewer than 3 measurements; accept what there is.
         shape, ratios = estimate_shape(np.stack(pts), np.stack(flags), min_samples=min(3, len(pts)))
-        self.shape = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
+        self.shape = jax.tree.map(_device_f32, shape)
         self._state = None
         return ratios
 
@@ -849,7 +856,7 @@ class Tracker:
             return False
         t0 = time.perf_counter()
         res, kps = initial_fit(
-            self._init_settings, self.shape, self.intrinsics, jnp.asarray(p0, _DTYPE), lm
+            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm
         )
         params = np.asarray(res.params)
         if not self._init_timed:  # the first call compiles: count it as compile time
@@ -858,14 +865,15 @@ class Tracker:
         if not np.all(np.isfinite(params)):
             return False
         floor = self._fit_floor(depth_m, params)
-        self._floor = jnp.asarray(floor, _DTYPE)
+        self._floor = _device_f32(floor)
         if self._found_floor is None and floor != NO_FLOOR:
             self._found_floor = np.asarray(floor, np.float64)
         N = self.config.n
         self._key, sub = jax.random.split(self._key)
+        # Tiled on the host (the first frame's path: no small programs to compile or load).
         self._state = TrackState(
-            hypotheses=jnp.tile(res.params[None], (N, 1)),
-            previous=jnp.tile(kps[None], (N, 1, 1)),
+            hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
+            previous=jax.device_put(np.tile(np.asarray(kps)[None], (N, 1, 1))),
             best=res.params,
             key=sub,
         )
