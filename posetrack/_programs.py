@@ -47,6 +47,7 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import numpy as np
 
 #: Bump when the file layout changes.
 _FORMAT = 1
@@ -93,6 +94,14 @@ def serial_execution():
     finally:
         with _serial_lock:
             _serial["depth"] -= 1
+
+
+def device_f32(x) -> jax.Array:
+    """``x`` as a float32 JAX array, converted on the host and copied to the device: the values
+    of ``jnp.asarray(x, float32)`` without an eager conversion, which JAX compiles (or, warm,
+    loads from the cache) as a small program per input type: on a cold start each such
+    compilation waits behind the big programs compiling in the background."""
+    return jax.device_put(np.asarray(x, np.float32))
 
 
 def log() -> list[ProgramEvent]:

@@ -43,7 +43,7 @@ from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_observation
 from ._geometry import surface_offsets
 from ._observe import Landmarks, lift_keypoints
-from ._programs import program
+from ._programs import device_f32, program
 from ._render import DEFAULT_SHARPNESS, Capsules, capsule_fields, capsule_params, soft_terms
 from ._residuals import ResidualSettings, landmark_residuals, pixel_scale
 from ._score import DEFAULT_D_M, delta_from_sums, delta_sums
@@ -553,26 +553,28 @@ def refine_shape(
 
     t0 = time.perf_counter()
     cfg = config.replace(score_width=settings.width, score_height=settings.height)
-    intr = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), intrinsics)
-    base = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), shape)
-    poses = jnp.asarray(P, _DTYPE)
-    floor = jnp.asarray(floor)
+    # Inputs converted on the host (device_f32, device_put): eager jnp conversions were small
+    # programs compiled one by one while the refinement's own programs compiled beside them.
+    intr = jax.tree.map(device_f32, intrinsics)
+    base = jax.tree.map(device_f32, shape)
+    poses = device_f32(P)
     z_d, z_fg, known, lm, rays, mpp, caps, small_intr = _observe_frames(
-        cfg, intr, floor, base, poses, jnp.asarray(D), jnp.asarray(K), jnp.asarray(C)
-    )
+        cfg, intr, jax.device_put(floor), base, poses, jax.device_put(D), jax.device_put(K),
+        jax.device_put(C),
+    )  # fmt: skip
     if settings.crop:
         small = jax.tree.map(float, small_intr)
         origin, size = _windows(z_fg, caps, small, margin=4, step=16)
     else:
         origin, size = np.zeros((len(P), 2), int), z_d.shape[1:]
     host = partial(jax.tree.map, np.asarray)
-    frames = jax.tree.map(jnp.asarray, _frames_from_maps(
+    frames = jax.tree.map(jax.device_put, _frames_from_maps(
         *host((z_d, z_fg, known, lm, rays, mpp)), host(small_intr), origin, size, weight
     ))  # fmt: skip
     u, poses_out, history = refine_shape_core(settings, base, poses, frames, intr)
     u = np.asarray(u, dtype=np.float64)
     history = np.asarray(history, dtype=np.float64)
-    refined = apply_factors(base, jnp.asarray(u, _DTYPE), settings.fields)
+    refined = apply_factors(base, device_f32(u), settings.fields)
     refined = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), refined)
     factors = {
         f: (float(SHOULDER_DROP_UNIT * u[k]) if f == "shoulder_drop" else float(np.exp(u[k])))

@@ -37,7 +37,7 @@ from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._programs import Program, prepare_in_background, prepare_now, program
+from ._programs import Program, device_f32, prepare_in_background, prepare_now, program
 from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import (
@@ -67,13 +67,6 @@ def _host_f32(x):
     if isinstance(x, jax.Array) and x.dtype == _DTYPE:
         return x
     return np.asarray(x, np.float32)
-
-
-def _device_f32(x) -> jax.Array:
-    """``x`` as a float32 JAX array, converted on the host and copied to the device: the values
-    of ``jnp.asarray(x, float32)`` without compiling (or loading from the cache) a conversion
-    program per input type, which cost a new tracker ~0.1 s of a warm start."""
-    return jax.device_put(np.asarray(x, np.float32))
 
 
 #: The pose pushed into the online window for a frame outside any track (never published).
@@ -124,12 +117,16 @@ def lift(config: TrackerConfig, shape, intrinsics, depth, kp2d, conf) -> Landmar
 
 
 @program("initial_fit", static_argnums=(0,), rare=True)
-def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks):
-    """The (re-)initialisation fit on all landmarks, compiled; returns (FitResult, keypoints)."""
+def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks, key):
+    """The (re-)initialisation fit on all landmarks, compiled; returns (FitResult, keypoints,
+    (next key, hypotheses' key)): ``jax.random.split(key)`` rides along, so a new track
+    runs no JAX operation of its own (each would be one more compilation on a cold start,
+    3 s of one while the step compiled beside it)."""
     res = fit_pose(
         params0, shape, lm, intrinsics, use3d=lm.has_depth, use2d=lm.detected, settings=settings
     )
-    return res, body.keypoints(shape, res.params)
+    keys = jax.random.split(key)
+    return res, body.keypoints(shape, res.params), (keys[0], keys[1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -528,14 +525,14 @@ class Tracker:
             raise TypeError(
                 f"Tracker: config must be posetrack.TrackerConfig, got {type(self.config)}"
             )
-        self.intrinsics = jax.tree.map(_device_f32, intrinsics)
+        self.intrinsics = jax.tree.map(device_f32, intrinsics)
         self.depth_scale = float(depth_scale)
         self.shape = (
-            None if shape is None else jax.tree.map(_device_f32, shape)
+            None if shape is None else jax.tree.map(device_f32, shape)
         )
         self._key = jax.random.PRNGKey(seed)
         self._state: TrackState | None = None
-        self._floor = _device_f32(NO_FLOOR)
+        self._floor = device_f32(NO_FLOOR)
         self._lost_run = 0
         self._ever_initialized = False
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
@@ -664,12 +661,13 @@ class Tracker:
             partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
         )
         key = jax.eval_shape(lambda k: jax.random.split(k)[1], self._key)
+        key_aval = jax.ShapeDtypeStruct(self._key.shape, self._key.dtype)
         state = TrackState(
             hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key
         )
         jobs = [
             (lift, (self.config, shape, intr, depth, kp, conf)),
-            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm)),
+            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm, key_aval)),
         ]
         later = []
         if self.mode == "offline":
@@ -730,7 +728,7 @@ class Tracker:
             raise ValueError("estimate_shape: no frames given")
         # With fewer than 3 frames a length has fewer than 3 measurements; accept what there is.
         shape, ratios = estimate_shape(np.stack(pts), np.stack(flags), min_samples=min(3, len(pts)))
-        self.shape = jax.tree.map(_device_f32, shape)
+        self.shape = jax.tree.map(device_f32, shape)
         self._state = None
         return ratios
 
@@ -855,8 +853,8 @@ class Tracker:
         if p0 is None:
             return False
         t0 = time.perf_counter()
-        res, kps = initial_fit(
-            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm
+        res, kps, keys = initial_fit(
+            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
         )
         params = np.asarray(res.params)
         if not self._init_timed:  # the first call compiles: count it as compile time
@@ -865,11 +863,11 @@ class Tracker:
         if not np.all(np.isfinite(params)):
             return False
         floor = self._fit_floor(depth_m, params)
-        self._floor = _device_f32(floor)
+        self._floor = device_f32(floor)
         if self._found_floor is None and floor != NO_FLOOR:
             self._found_floor = np.asarray(floor, np.float64)
         N = self.config.n
-        self._key, sub = jax.random.split(self._key)
+        self._key, sub = keys
         # Tiled on the host (the first frame's path: no small programs to compile or load).
         self._state = TrackState(
             hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
