@@ -660,14 +660,13 @@ class Tracker:
         lm = jax.eval_shape(
             partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
         )
-        key = jax.eval_shape(lambda k: jax.random.split(k)[1], self._key)
-        key_aval = jax.ShapeDtypeStruct(self._key.shape, self._key.dtype)
+        key = jax.ShapeDtypeStruct(self._key.shape, self._key.dtype)  # a split key's too
         state = TrackState(
             hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key
         )
         jobs = [
             (lift, (self.config, shape, intr, depth, kp, conf)),
-            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm, key_aval)),
+            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm, key)),
         ]
         later = []
         if self.mode == "offline":
