@@ -40,6 +40,7 @@ frame (12 frames, 4 iterations); this one adds about 15 % (``benchmarks/motion.p
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import equinox as eqx
 import jax
@@ -99,6 +100,17 @@ class SmoothSettings:
     overlap: int = 16
     """Frames each window shares with the next (offline); the first and last ``overlap // 2``
     of a window are taken from its neighbours."""
+    outlier_distance: float = 0.15
+    """Offline start: a limb's per-frame pose is an outlier at frame t when its elbow or wrist
+    (knee or ankle) lies farther than this, metres, from the median of its positions over
+    the ``outlier_frames`` frames either side while the tracker's confidence in it is below
+    ``outlier_confidence``; the smoother then starts that limb, and anchors its
+    regulariser, at the pose interpolated between the limb's nearest frames that are not
+    (:func:`interpolated_start`). ``inf`` turns this off."""
+    outlier_confidence: float = 0.3
+    """See ``outlier_distance`` (the tracker's per-keypoint confidence, in [0, 1])."""
+    outlier_frames: int = 3
+    """See ``outlier_distance``."""
 
     def __post_init__(self):
         if not (self.accel_std > 0 and self.landmark_std > 0):
@@ -123,6 +135,15 @@ class SmoothSettings:
         if not 0 <= self.overlap <= self.window // 2:
             raise ValueError(
                 f"SmoothSettings.overlap must be in [0, window / 2], got {self.overlap}"
+            )
+        if not self.outlier_distance > 0:
+            raise ValueError(
+                f"SmoothSettings.outlier_distance must be positive (inf: off), got "
+                f"{self.outlier_distance}"
+            )
+        if self.outlier_frames < 1:
+            raise ValueError(
+                f"SmoothSettings.outlier_frames must be >= 1, got {self.outlier_frames}"
             )
 
     def online_weight(self, fps: float | Array) -> Array:
@@ -351,6 +372,80 @@ def smooth_window(
 smooth_window_jit = eqx.filter_jit(smooth_window)
 
 
+#: The limbs the smoother's start repairs (right arm, left arm, right leg, left leg): the two
+#: keypoints at each limb's end (COCO-18) and the two joints that pose it (``JOINT_NAMES``).
+LIMB_KEYPOINTS = ((3, 4), (6, 7), (9, 10), (12, 13))
+LIMB_JOINTS = ((2, 3), (4, 5), (6, 7), (8, 9))
+
+
+def interpolated_start(
+    settings: SmoothSettings,
+    params: np.ndarray,
+    keypoints: np.ndarray,
+    confidence: np.ndarray,
+    valid: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The offline smoother's start with each limb's per-frame outliers interpolated.
+
+    The per-frame tracker sometimes follows a detector outlier for a frame (a wrist or an
+    ankle pulled half a metre away, the hypotheses in disagreement, so with a low confidence).
+    The smoother's data term then hardly weighs that frame, but its Levenberg-Marquardt
+    starts there and its regulariser anchors there: from such a start the acceleration prior
+    drags the limb's neighbouring frames toward the outlier and the fit settles in a wrong
+    local minimum (a generated clip: an ankle 30 cm off over 12 frames the per-frame poses
+    had right but one). So where a limb is an outlier (see ``SmoothSettings.outlier_distance``)
+    its two joint quaternions are replaced by the normalised linear interpolation between the
+    limb's nearest frames before and after that are not; a limb with no such frame on one
+    side is left as it is. Host-side NumPy, once per recording.
+
+    Args:
+        settings: ``outlier_distance``, ``outlier_confidence``, ``outlier_frames``.
+        params: (T, 43) per-frame poses (quaternions wxyz).
+        keypoints: (T, 18, 3) their keypoints, metres.
+        confidence: (T, 18) the tracker's per-keypoint confidence.
+        valid: (T,) frames with a pose; the others are neither read nor changed.
+
+    Returns:
+        ``(params, replaced)``: (T, 43) float32, and (T, 4) bool, which limb (in
+        :data:`LIMB_KEYPOINTS` order) was replaced at which frame.
+    """
+    params = np.array(params, np.float32)
+    valid = np.asarray(valid, bool)
+    T, h = len(params), settings.outlier_frames
+    replaced = np.zeros((T, len(LIMB_KEYPOINTS)), bool)
+    if not np.isfinite(settings.outlier_distance) or T < 2:
+        return params, replaced
+    x = np.where(valid[:, None, None], np.asarray(keypoints, np.float64), np.nan)
+    pad = np.full((h, *x.shape[1:]), np.nan)
+    xp = np.concatenate([pad, x, pad])
+    near = np.stack([xp[h + o : h + o + T] for o in range(-h, h + 1) if o != 0])
+    with warnings.catch_warnings():  # frames without a neighbour: NaN, never an outlier
+        warnings.simplefilter("ignore", RuntimeWarning)
+        median = np.nanmedian(near, axis=0)
+    dev = np.linalg.norm(x - median, axis=-1)
+    with np.errstate(invalid="ignore"):
+        outlier = (dev > settings.outlier_distance) & (
+            np.asarray(confidence) < settings.outlier_confidence
+        )
+    for limb, (kps, joints) in enumerate(zip(LIMB_KEYPOINTS, LIMB_JOINTS)):
+        bad = valid & outlier[:, list(kps)].any(axis=1)
+        good = np.flatnonzero(valid & ~bad)
+        t = np.flatnonzero(bad)
+        i = np.searchsorted(good, t)
+        inside = (i > 0) & (i < len(good))
+        t, i = t[inside], i[inside]
+        before, after = good[i - 1], good[i]
+        w = ((t - before) / (after - before))[:, None]
+        for j in joints:
+            cols = slice(3 + 4 * j, 7 + 4 * j)
+            q0, q1 = params[before, cols], params[after, cols]
+            q1 = np.where(np.sum(q0 * q1, axis=-1, keepdims=True) < 0, -q1, q1)
+            q = (1 - w) * q0 + w * q1
+            params[t, cols] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        replaced[t, limb] = True
+    return params, replaced
+
+
 def smooth_sequence(
     settings: SmoothSettings,
     shape: body.BodyShape,
@@ -383,6 +478,8 @@ def smooth_sequence(
     params = np.asarray(params, np.float32)
     valid = np.asarray(valid, bool)
     T = len(params)
+    if pose_confidence is not None:
+        params, _ = interpolated_start(settings, params, keypoints, pose_confidence, valid)
     W, step = settings.window, settings.window - settings.overlap
     half = settings.overlap // 2
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))

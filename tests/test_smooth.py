@@ -148,6 +148,93 @@ def test_settings_reject_bad_values():
         pt.SmoothSettings(online_accel_std=-1.0)
     with pytest.raises(ValueError, match="online_iterations"):
         pt.SmoothSettings(online_iterations=0)
+    with pytest.raises(ValueError, match="outlier_distance"):
+        pt.SmoothSettings(outlier_distance=0.0)
+    with pytest.raises(ValueError, match="outlier_frames"):
+        pt.SmoothSettings(outlier_frames=0)
+
+
+def _limb_track(T=20):
+    """Per-frame poses whose right elbow bends steadily, their (stand-in) keypoints moving
+    smoothly, and full confidence."""
+    params = np.tile(np.asarray(pt.facing_camera_params(2.5), np.float32), (T, 1))
+    angle = np.linspace(0.0, 1.0, T)
+    params[:, 15:19] = np.stack(  # right elbow (joint 3): a rotation about x
+        [np.cos(angle / 2), np.sin(angle / 2), 0 * angle, 0 * angle], axis=1
+    )
+    kps = _walk_truth(T)
+    return params, kps, np.ones((T, 18), np.float32), np.ones(T, bool)
+
+
+def test_interpolated_start_replaces_only_the_outlying_limb_of_a_doubtful_frame():
+    settings = pt.SmoothSettings()
+    params, kps, conf, valid = _limb_track()
+    kps[10, 4] += [0.0, -0.6, 0.0]  # the right wrist pulled 60 cm up at frame 10 ...
+    params[10, 11:19] = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]  # ... the arm with it
+    # Confident: a real motion, kept.
+    out, replaced = _smooth.interpolated_start(settings, params, kps, conf, valid)
+    np.testing.assert_array_equal(out, params)
+    assert not replaced.any()
+    conf[10, 4] = 0.1  # the tracker doubted it
+    out, replaced = _smooth.interpolated_start(settings, params, kps, conf, valid)
+    assert replaced.sum() == 1 and replaced[10, 0]  # the right arm at frame 10, nothing else
+    changed = np.flatnonzero((out != params).any(axis=0))
+    assert set(changed) <= set(range(11, 19)), changed  # right shoulder and elbow only
+    np.testing.assert_array_equal(np.delete(out, 10, axis=0), np.delete(params, 10, axis=0))
+    # Halfway between its neighbours: the shoulder as at frames 9 and 11, the elbow between.
+    np.testing.assert_allclose(out[10, 11:15], params[9, 11:15], atol=1e-6)
+    mid = params[9, 15:19] + params[11, 15:19]
+    np.testing.assert_allclose(out[10, 15:19], mid / np.linalg.norm(mid), atol=1e-6)
+    # A frame without a pose is neither a neighbour nor changed; off means off.
+    valid[9] = False
+    out, _ = _smooth.interpolated_start(settings, params, kps, conf, valid)
+    np.testing.assert_array_equal(out[9], params[9])
+    mid = params[8, 15:19] + 2 * params[11, 15:19]  # frame 10 is a third of the way from 8
+    np.testing.assert_allclose(out[10, 15:19], mid / np.linalg.norm(mid), atol=1e-6)
+    off = dataclasses.replace(settings, outlier_distance=float("inf"))
+    np.testing.assert_array_equal(_smooth.interpolated_start(off, params, kps, conf, valid)[0],
+                                  params)  # fmt: skip
+
+
+def test_interpolated_start_leaves_a_limb_without_a_neighbour_on_one_side():
+    params, kps, conf, valid = _limb_track()
+    kps[19, 10] += [0.5, 0.0, 0.0]  # the right ankle at the last frame
+    conf[19, 10] = 0.0
+    params[19, 27:35] = [0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]
+    out, replaced = _smooth.interpolated_start(pt.SmoothSettings(), params, kps, conf, valid)
+    np.testing.assert_array_equal(out, params)
+    assert not replaced.any()
+
+
+def test_smooth_sequence_starts_from_the_interpolated_start(monkeypatch):
+    """The offline smoother's windows receive the repaired start (no compilation: the window
+    program is replaced by one that records its input)."""
+    settings = pt.SmoothSettings()
+    params, kps, conf, valid = _limb_track()
+    kps[10, 4] += [0.0, -0.6, 0.0]
+    params[10, 11:19] = [0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+    conf[10, 4] = 0.1
+    seen = []
+
+    def window(settings, shape, intrinsics, p, *rest):
+        seen.append(np.asarray(p))
+        return p, jnp.zeros((p.shape[0], 18, 3))
+
+    monkeypatch.setattr(_smooth, "smooth_window_program", window)
+    lm = Landmarks(
+        keypoints2d=np.zeros((20, 18, 2), np.float32), confidence=conf,
+        points3d=kps.astype(np.float32), detected=np.ones((20, 18), bool),
+        has_depth=np.ones((20, 18), bool),
+    )  # fmt: skip
+    intr = pt.Intrinsics.create(fx=525.0, fy=525.0, cx=160.0, cy=120.0, width=320, height=240)
+    _smooth.smooth_sequence(
+        settings, pt.BodyShape.default(jnp.float32), intr, params, lm, valid, fps=30.0,
+        keypoints=kps, pose_confidence=conf,
+    )  # fmt: skip
+    expected, _ = _smooth.interpolated_start(settings, params, kps, conf, valid)
+    assert len(seen) == 1
+    np.testing.assert_array_equal(seen[0][:20], expected)
+    assert not np.array_equal(expected, params)
 
 
 def test_keypoint_smoother_removes_noise_and_keeps_a_straight_line():
