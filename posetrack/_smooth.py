@@ -51,6 +51,7 @@ from jaxtyping import Array, Bool, Float
 from . import _body as body
 from ._camera import Intrinsics
 from ._fit import fit_problem, fit_residuals
+from ._limbs import LIMBS
 from ._observe import Landmarks
 from ._programs import program
 from ._residuals import ResidualSettings, _sqrt_reweight
@@ -372,10 +373,11 @@ def smooth_window(
 smooth_window_jit = eqx.filter_jit(smooth_window)
 
 
-#: The limbs the smoother's start repairs (right arm, left arm, right leg, left leg): the two
-#: keypoints at each limb's end (COCO-18) and the two joints that pose it (``JOINT_NAMES``).
-LIMB_KEYPOINTS = ((3, 4), (6, 7), (9, 10), (12, 13))
-LIMB_JOINTS = ((2, 3), (4, 5), (6, 7), (8, 9))
+#: The limbs the smoother's start repairs (right arm, left arm, right leg, left leg, as
+#: ``_limbs.LIMBS``): the two keypoints at each limb's end (COCO-18: elbow and wrist, knee
+#: and ankle) and the two joints that pose it (``body.JOINT_NAMES``).
+LIMB_KEYPOINTS = tuple((mid, end) for _, _, _, mid, end in LIMBS)
+LIMB_JOINTS = tuple((upper, lower) for upper, lower, *_ in LIMBS)
 
 
 def interpolated_start(
@@ -392,11 +394,12 @@ def interpolated_start(
     The smoother's data term then hardly weighs that frame, but its Levenberg-Marquardt
     starts there and its regulariser anchors there: from such a start the acceleration prior
     drags the limb's neighbouring frames toward the outlier and the fit settles in a wrong
-    local minimum (a generated clip: an ankle 30 cm off over 12 frames the per-frame poses
-    had right but one). So where a limb is an outlier (see ``SmoothSettings.outlier_distance``)
-    its two joint quaternions are replaced by the normalised linear interpolation between the
-    limb's nearest frames before and after that are not; a limb with no such frame on one
-    side is left as it is. Host-side NumPy, once per recording.
+    local minimum (a generated clip: an ankle 20-30 cm off over 12 frames the per-frame
+    poses had right but one). So where a limb is an outlier (see
+    ``SmoothSettings.outlier_distance``) its two joint quaternions are replaced by the
+    normalised linear interpolation between the limb's nearest frames before and after that
+    are not; a limb with no such frame on one side is left as it is. Host-side NumPy, once
+    per recording.
 
     Args:
         settings: ``outlier_distance``, ``outlier_confidence``, ``outlier_frames``.
@@ -470,6 +473,9 @@ def smooth_sequence(
         keypoints: (T, 18, 3) the tracker's per-frame keypoints, metres (any values where
             ``valid`` is False): the consensus reference and the anchor of the data term
             (``targets`` of :func:`smooth_window`).
+        pose_confidence: (T, 18) the tracker's per-keypoint confidence, the keypoints'
+            weights in the data term (default 1); where it is low and a limb's keypoints
+            jump, the limb starts from its neighbours' pose (:func:`interpolated_start`).
 
     Returns:
         ``(params, keypoints)``: (T, 43) NumPy float32, frames that are not ``valid``
