@@ -40,7 +40,6 @@ frame (12 frames, 4 iterations); this one adds about 15 % (``benchmarks/motion.p
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
 import equinox as eqx
 import jax
@@ -49,6 +48,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from . import _body as body
+from ._associate import quiet_nanmedian
 from ._camera import Intrinsics
 from ._fit import fit_problem, fit_residuals
 from ._limbs import LIMBS
@@ -416,20 +416,17 @@ def interpolated_start(
     valid = np.asarray(valid, bool)
     T, h = len(params), settings.outlier_frames
     replaced = np.zeros((T, len(LIMB_KEYPOINTS)), bool)
-    if not np.isfinite(settings.outlier_distance) or T < 2:
+    if not np.isfinite(settings.outlier_distance):
         return params, replaced
     x = np.where(valid[:, None, None], np.asarray(keypoints, np.float64), np.nan)
     pad = np.full((h, *x.shape[1:]), np.nan)
     xp = np.concatenate([pad, x, pad])
     near = np.stack([xp[h + o : h + o + T] for o in range(-h, h + 1) if o != 0])
-    with warnings.catch_warnings():  # frames without a neighbour: NaN, never an outlier
-        warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(near, axis=0)
-    dev = np.linalg.norm(x - median, axis=-1)
-    with np.errstate(invalid="ignore"):
-        outlier = (dev > settings.outlier_distance) & (
-            np.asarray(confidence) < settings.outlier_confidence
-        )
+    # A frame without a valid neighbour gets a NaN median: never an outlier.
+    dev = np.linalg.norm(x - quiet_nanmedian(near, axis=0), axis=-1)
+    outlier = (dev > settings.outlier_distance) & (
+        np.asarray(confidence) < settings.outlier_confidence
+    )
     for limb, (kps, joints) in enumerate(zip(LIMB_KEYPOINTS, LIMB_JOINTS)):
         bad = valid & outlier[:, list(kps)].any(axis=1)
         good = np.flatnonzero(valid & ~bad)
@@ -484,14 +481,13 @@ def smooth_sequence(
     params = np.asarray(params, np.float32)
     valid = np.asarray(valid, bool)
     T = len(params)
-    if pose_confidence is not None:
-        params, _ = interpolated_start(settings, params, keypoints, pose_confidence, valid)
+    conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
+    params, _ = interpolated_start(settings, params, keypoints, conf, valid)
     W, step = settings.window, settings.window - settings.overlap
     half = settings.overlap // 2
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
     kps_in = np.where(valid[:, None, None], np.nan_to_num(np.asarray(keypoints, np.float32)), 0.0)
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
-    conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
     out = params.copy()
     out_kps = np.zeros((T, 18, 3), np.float32)
     fps_arr = jnp.asarray(fps, jnp.float32)
