@@ -46,6 +46,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from accuracy import REAL  # the reported real-capture clips (tune.py tunes on others)
 from seeds import REPORT_SEEDS
 
 import posetrack as pt
@@ -131,14 +132,31 @@ def main() -> int:
         help="posetrack.synth.generate's randomisation (wide: bodies, cameras, sensor and "
         "detector errors the defaults were not tuned on)",
     )  # fmt: skip
+    ap.add_argument(
+        "--motions", choices=("procedural", "real"), default="procedural",
+        help="the built-in motions, or real motion capture retargeted to each generated body "
+        "(accuracy.py's reported CMU / MSR Action3D / UTKinect clips, read from ../shared/data "
+        "or $POSETRACK_DATA)",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
     clips = 3 if a.quick else a.clips
+    motions = MOTIONS
+    if a.motions == "real":
+        available = set(pt.synth.list_real_motions())
+        motions = tuple(m for m in REAL if m in available)
+        if not motions:
+            print(
+                "error: --motions real: none of accuracy.py's real clips is present (looked in "
+                "$POSETRACK_DATA or ../shared/data; see README, Synthetic data)",
+                file=sys.stderr,
+            )
+            return 2
     per_clip = []
     t0 = time.perf_counter()
     for i in range(clips):
         seed = REPORT_SEEDS[a.start + i]
-        motion = MOTIONS[(a.start + i) % len(MOTIONS)]
+        motion = motions[(a.start + i) % len(motions)]
         for occ in (0, 2):
             r = run_clip(seed, motion, occ, a.frames, a.variety)
             gt = r["truth"]
@@ -253,7 +271,7 @@ def main() -> int:
     result = {
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
-        "variety": a.variety,
+        "variety": a.variety, "motions": a.motions,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
