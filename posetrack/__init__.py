@@ -81,6 +81,7 @@ from ._sides import SideSettings as SideSettings
 from ._sides import arbitration_spans as arbitration_spans
 from ._sides import prefer_exchanged as prefer_exchanged
 from ._sides import two_sided_exchanged as two_sided_exchanged
+from ._limbs import LIMB_NAMES as LIMB_NAMES
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate
@@ -133,7 +134,7 @@ __all__ = [
     # start-up: compiled programs kept on disk
     "enable_cache",
     # the motion model
-    "MODES", "ONLINE_LAG", "SmoothSettings", "smooth_window",
+    "LIMB_NAMES", "MODES", "ONLINE_LAG", "SmoothSettings", "smooth_window",
     # the detector's left/right swaps
     "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "prefer_exchanged",
     "two_sided_exchanged",

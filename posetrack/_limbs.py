@@ -34,6 +34,8 @@ from ._select import consensus_set
 #: (upper joint frame, lower joint frame, root keypoint, middle keypoint, end keypoint) of the
 #: right arm, left arm, right leg, left leg (frames index ``body.JOINT_NAMES``).
 LIMBS = ((2, 3, 2, 3, 4), (4, 5, 5, 6, 7), (6, 7, 8, 9, 10), (8, 9, 11, 12, 13))
+#: The names of :data:`LIMBS`, in its order (reports, ``summary.json``).
+LIMB_NAMES = ("right arm", "left arm", "right leg", "left leg")
 
 _ARMS = (3, 4, 6, 7)  # elbows, wrists
 _LEGS = (9, 10, 12, 13)  # knees, ankles

@@ -457,7 +457,7 @@ def smooth_sequence(
     fps: float,
     keypoints: np.ndarray,
     pose_confidence: np.ndarray | None = None,
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The offline smoother over a whole recording: :func:`smooth_window` on overlapping
     windows of ``settings.window`` frames (one jitted call each; one compiled program for
     any length).
@@ -475,14 +475,15 @@ def smooth_sequence(
             jump, the limb starts from its neighbours' pose (:func:`interpolated_start`).
 
     Returns:
-        ``(params, keypoints)``: (T, 43) NumPy float32, frames that are not ``valid``
-        unchanged; (T, 18, 3) the keypoints of those poses, metres.
+        ``(params, keypoints, interpolated)``: (T, 43) NumPy float32, frames that are not
+        ``valid`` unchanged; (T, 18, 3) the keypoints of those poses, metres; (T, 4) bool,
+        which limb (``_limbs.LIMB_NAMES``) started from its neighbours' pose at which frame.
     """
     params = np.asarray(params, np.float32)
     valid = np.asarray(valid, bool)
     T = len(params)
     conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
-    params, _ = interpolated_start(settings, params, keypoints, conf, valid)
+    params, interpolated = interpolated_start(settings, params, keypoints, conf, valid)
     W, step = settings.window, settings.window - settings.overlap
     half = settings.overlap // 2
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
@@ -515,7 +516,7 @@ def smooth_sequence(
         )
         out_kps[start + keep] = kps[keep]
         if stop == T:
-            return out, out_kps
+            return out, out_kps, interpolated
         start += step
 
 

@@ -171,6 +171,12 @@ class TrackResult:
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
     (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``; online and
     per-frame by default)."""
+    interpolated: np.ndarray | None = None
+    """(T, 4) bool, offline only: where the motion model started a limb (right arm, left arm,
+    right leg, left leg: :data:`posetrack.LIMB_NAMES`) from its neighbours' pose because
+    the per-frame pose had followed a doubtful keypoint jump (:class:`SmoothSettings`
+    ``outlier_distance``); a place to look at the detections. ``None`` when no offline
+    smoothing ran."""
     floor: np.ndarray | None = None
     """(4,) the first floor plane the tracker found in this recording, ``(nx, ny, nz, d)``
     in the camera frame with ``n @ p + d`` a point's height (metres); ``None`` when none was
@@ -1151,7 +1157,7 @@ class Tracker:
         exchanged = None if self.sides is None else out.exchanged
         if self._batched is not None:  # no more steps: the other sequences need not wait
             self._batched[0].leave(self._batched[1])
-        per_frame = None
+        per_frame = interpolated = None
         if self.mode == "online" and self.lag > 0:
             # The newest frames' smoothed poses were never lagged out: smooth the last window.
             sm, sk = online_flush(
@@ -1172,7 +1178,7 @@ class Tracker:
                     detected=det, has_depth=has_d,
                 )  # fmt: skip
                 t0 = time.perf_counter()
-                smoothed, smoothed_kps = smooth_sequence(
+                smoothed, smoothed_kps, interpolated = smooth_sequence(
                     self.motion, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
                     fps=self.fps, keypoints=kp3, pose_confidence=conf_out,
                 )  # fmt: skip
@@ -1203,6 +1209,7 @@ class Tracker:
             num_people=num_people,
             per_frame_keypoints3d=per_frame,
             exchanged=exchanged,
+            interpolated=interpolated,
             floor=self._found_floor,
             mode=self.mode,
             lag=self.lag,

@@ -215,6 +215,9 @@ def test_summary_and_printout(cli, poses):
     assert summary["inputs"]["fix_sides"] is True and set(summary["sides_exchanged"]) == {
         "arms", "legs"
     }
+    # Offline: per limb, the frames the motion model started from the neighbours' pose.
+    assert set(summary["limbs_interpolated"]) == set(posetrack.LIMB_NAMES)
+    assert all(isinstance(n, int) for n in summary["limbs_interpolated"].values())
     # Offline (the default) refines the body shape against the depth of a few frames.
     refit = summary["shape_refinement"]
     assert summary["inputs"]["refine_shape"] is True and refit["refined"] is True

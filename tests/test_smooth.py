@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack import _smooth
+from posetrack import _limbs, _smooth
 from posetrack._observe import Landmarks
 
 # -- metrics ----------------------------------------------------------------------------------
@@ -227,14 +227,27 @@ def test_smooth_sequence_starts_from_the_interpolated_start(monkeypatch):
         has_depth=np.ones((20, 18), bool),
     )  # fmt: skip
     intr = pt.Intrinsics.create(fx=525.0, fy=525.0, cx=160.0, cy=120.0, width=320, height=240)
-    _smooth.smooth_sequence(
+    _, _, interpolated = _smooth.smooth_sequence(
         settings, pt.BodyShape.default(jnp.float32), intr, params, lm, valid, fps=30.0,
         keypoints=kps, pose_confidence=conf,
     )  # fmt: skip
-    expected, _ = _smooth.interpolated_start(settings, params, kps, conf, valid)
+    expected, replaced = _smooth.interpolated_start(settings, params, kps, conf, valid)
     assert len(seen) == 1
     np.testing.assert_array_equal(seen[0][:20], expected)
     assert not np.array_equal(expected, params)
+    # ... and says which limb it started from its neighbours, where (TrackResult.interpolated).
+    np.testing.assert_array_equal(interpolated, replaced)
+    assert pt.LIMB_NAMES[0] == "right arm" and np.flatnonzero(interpolated[:, 0]).tolist() == [10]
+    assert not interpolated[:, 1:].any()
+
+
+def test_limb_names_follow_the_limbs_keypoints():
+    """``LIMB_NAMES`` (summary.json's ``limbs_interpolated``) names each limb's keypoints."""
+    for name, (*_, mid, end) in zip(pt.LIMB_NAMES, _limbs.LIMBS, strict=True):
+        side, part = name.split()
+        joints = ("elbow", "wrist") if part == "arm" else ("knee", "ankle")
+        expect = tuple(f"{side}_{j}" for j in joints)
+        assert (pt.KEYPOINT_NAMES[mid], pt.KEYPOINT_NAMES[end]) == expect, name
 
 
 def test_keypoint_smoother_removes_noise_and_keeps_a_straight_line():
@@ -330,6 +343,7 @@ def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     assert off.mode == "offline" and per.per_frame_keypoints3d is None
     # Left/right relabelling runs offline by default (arbitrated by the depth), not per-frame.
     assert per.exchanged is None and off.exchanged is not None
+    assert per.interpolated is None and off.interpolated.shape == (len(clip.depth), 4)
     if not off.exchanged.any():  # nothing exchanged: the per-frame pass is the paper's tracker
         np.testing.assert_array_equal(off.per_frame_keypoints3d, per.keypoints3d)
     else:

@@ -115,6 +115,7 @@ def _track(args) -> int:
     import numpy as np
 
     from .. import io
+    from .._limbs import LIMB_NAMES
     from .._sides import SideSettings
     from .._tracker import Tracker
     from ._export import check_output_dir, save_results, status_counts
@@ -216,6 +217,11 @@ def _track(args) -> int:
         if result.exchanged is None
         else {g: int(n) for g, n in zip(tracker.sides.groups, result.exchanged.sum(axis=0))}
     )
+    interpolated = (  # frames where the motion model started each limb from its neighbours
+        None
+        if result.interpolated is None
+        else {n: int(k) for n, k in zip(LIMB_NAMES, result.interpolated.sum(axis=0))}
+    )
     t_tracked = time.perf_counter()
     person = _person_summary(result, rec.frame_ids, args.person)
     if kp2d.ndim == 4:  # the followed person's detections, for the overlay and the files
@@ -246,6 +252,9 @@ def _track(args) -> int:
         "frame_timestamps": None if rec.timestamps is None else rec.timestamps.tolist(),
         "person": person,
         "sides_exchanged": undone,
+        # Offline: frames where a limb's per-frame pose followed a doubtful keypoint jump and
+        # the motion model started it from its neighbours' pose (null: no offline smoothing).
+        "limbs_interpolated": interpolated,
         # Each stretch tracked both ways (offline: read exchanged from both directions;
         # online: the first frames of each exchange read forwards).
         "sides_arbitrated": [
@@ -286,6 +295,9 @@ def _track(args) -> int:
     if undone and any(undone.values()):
         listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
         print(f"left/right swaps of the detector undone (frames): {listed}")
+    if interpolated and any(interpolated.values()):
+        listed = ", ".join(f"{n} {k}" for n, k in interpolated.items() if k)
+        print(f"limbs started from their neighbours' pose by the motion model (frames): {listed}")
     if person["max_people"] > 1:
         print(
             f"person: followed people[{person['first_index']}] of frame "
