@@ -35,6 +35,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
 
     python benchmarks/motion.py --clips 12          # ~15 min on 2 cores
     python benchmarks/motion.py --quick             # 3 clips
+    python benchmarks/motion.py --motions real --clips 12   # real motion capture, ~30 min
 """
 
 from __future__ import annotations
