@@ -139,6 +139,12 @@ class TrackerConfig(eqx.Module):
     consensus_distance: float = 0.12
     """Metres (2D: at the keypoint's depth) within which a landmark agrees with the winner.
     Traced."""
+    consensus_in_batch: bool = eqx.field(default=False, static=True)
+    """With ``consensus_refit``: instead of refitting this frame's winner after the scores (a
+    second fit and render program inside the step, about 40 % of its compilation), fit one
+    more hypothesis in the same batch: the previous output on the landmarks within
+    ``consensus_distance`` of its keypoints, scored with the others; if it wins it takes the
+    best hypothesis' place, as the refit does. Not in the paper."""
     limb_hypotheses: int = eqx.field(default=0, static=True)
     """S of the N hypotheses restart every frame from the previous output with each limb
     turned onto this frame's 3D landmarks: as labelled, then with both arms and legs, the

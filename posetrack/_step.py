@@ -205,6 +205,17 @@ def tracker_step(
         )
         use3d = use3d.at[N - S :].set(s_u3)
         use2d = use2d.at[N - S :].set(s_u2)
+    in_batch = config.consensus_refit and config.consensus_in_batch and config.method != "lvm"
+    if in_batch:
+        # One more hypothesis: the previous output refitted on its consensus set (see
+        # ``TrackerConfig.consensus_in_batch``).
+        c3, c2 = consensus_set(
+            lm, body.keypoints(shape, state.best), intrinsics, config.consensus_distance
+        )
+        starts = jnp.concatenate([starts, state.best[None]])
+        use3d, use2d = jnp.concatenate([use3d, c3[None]]), jnp.concatenate([use2d, c2[None]])
+        if S:
+            lm_fit = jax.tree.map(lambda x, y: jnp.concatenate([x, y[None]]), lm_fit, lm)
     fits = fit_hypotheses(
         starts, shape, lm_fit, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit,
         per_hypothesis_landmarks=bool(S),
@@ -219,10 +230,19 @@ def tracker_step(
         return score_hypotheses(config, shape, p, z_d, z_fg, small_intr, known)
 
     deltas = score(params)
+    if in_batch:
+        extra, extra_delta = params[N], deltas[N]
+        params, deltas, use3d, use2d = params[:N], deltas[:N], use3d[:N], use2d[:N]
+        fits = jax.tree.map(lambda x: x[:N], fits)
     best = jnp.argmin(deltas)
     chosen = params[best]
     chosen_delta = deltas[best]
-    if config.consensus_refit and config.method != "lvm":
+    if in_batch:
+        better = extra_delta <= chosen_delta
+        chosen = jnp.where(better, extra, chosen)
+        chosen_delta = jnp.where(better, extra_delta, chosen_delta)
+        params = params.at[best].set(chosen)
+    elif config.consensus_refit and config.method != "lvm":
         chosen, chosen_delta = consensus_refit(
             config, shape, intrinsics, lm, chosen, chosen_delta, score
         )

@@ -475,6 +475,50 @@ def test_consensus_refit_is_kept_only_if_delta_is_not_worse(refit_jit, refit_cas
 
 
 # ---------------------------------------------------------------------------------------------
+# The consensus refit inside the batch (TrackerConfig.consensus_in_batch)
+
+
+def test_consensus_in_batch_fits_the_previous_output_beside_the_hypotheses(scene):
+    """One frame of the step with ``consensus_in_batch``: every hypothesis starts turned away
+    from the camera a metre off, the previous output near the truth. The output is the
+    previous output refitted on its consensus set (computed here with ``fit_pose`` on its
+    own), fitted and scored in the same batch as the hypotheses, and it takes the best
+    hypothesis' place."""
+    from posetrack._depthobs import NO_FLOOR, tracker_landmarks
+    from posetrack._select import consensus_set
+    from posetrack._step import TrackState
+
+    true, M = scene["true"], scene["M"]
+    config = _config("mht_h", consensus_in_batch=True, score_width=64)
+    turn = B.normalize_params(jnp.asarray(pt.facing_camera_params(3.5), jnp.float32))
+    turn = turn.at[3:7].set(jnp.asarray([0.0, 0.0, 1.0, 0.0]))  # facing away
+    far = jnp.stack([turn.at[0].add(0.3 * k - 0.3) for k in range(N)])
+    noise = np.random.default_rng(6).normal(size=43) * 0.02
+    best = B.normalize_params(true + jnp.asarray(noise, jnp.float32))
+    state = TrackState(
+        hypotheses=far, previous=jax.vmap(lambda p: pt.keypoints(SHAPE, p))(far), best=best,
+        key=jax.random.PRNGKey(0),
+    )  # fmt: skip
+    kp2d = jnp.asarray(_project(M), jnp.float32)
+    conf = jnp.ones(18, jnp.float32)
+    floor = jnp.asarray(NO_FLOOR, jnp.float32)
+    _, est = jax.jit(pt.tracker_step)(config, SHAPE, INTR, floor, state, scene["depth"], kp2d, conf)
+    lm = tracker_landmarks(config, SHAPE, INTR, scene["depth"], kp2d, conf)
+    use3d, use2d = consensus_set(lm, pt.keypoints(SHAPE, best), INTR, config.consensus_distance)
+    ref = jax.jit(pt.fit_pose, static_argnames="settings")(
+        best, SHAPE, lm, INTR, use3d=use3d, use2d=use2d, settings=config.fit
+    )
+    np.testing.assert_allclose(_kps(est.params), _kps(ref.params), atol=2e-3)
+    assert _err(est.params, M).mean() < 0.05  # lifted at 64x48: a few cm from the truth
+    b = int(est.best)
+    np.testing.assert_array_equal(np.asarray(est.hypotheses[b]), np.asarray(est.params))
+    assert float(est.delta) <= float(np.min(np.delete(np.asarray(est.deltas), b)))
+    # The hypotheses themselves stayed far off (the check has teeth: they could not win).
+    others = [_err(h, M).mean() for i, h in enumerate(est.hypotheses) if i != b]
+    assert min(others) > 0.2, others
+
+
+# ---------------------------------------------------------------------------------------------
 # Dense refinement
 
 REFINE_STEPS = 10
