@@ -141,7 +141,7 @@ class TrackerConfig(eqx.Module):
     Traced."""
     consensus_in_batch: bool = eqx.field(default=False, static=True)
     """With ``consensus_refit``: instead of refitting this frame's winner after the scores (a
-    second fit and render program inside the step, about 40 % of its compilation), fit one
+    second fit and render program inside the step, about a third of its compilation), fit one
     more hypothesis in the same batch: the previous output on the landmarks within
     ``consensus_distance`` of its keypoints, scored with the others; if it wins it takes the
     best hypothesis' place, as the refit does. Not in the paper."""
