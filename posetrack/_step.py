@@ -124,6 +124,19 @@ def reseed_hypotheses(
     return jnp.where(worse[:, None], chosen[None, :], params)
 
 
+def keep_if_not_worse(
+    candidate: Float[Array, 43],
+    candidate_delta: Float[Array, ""],
+    chosen: Float[Array, 43],
+    chosen_delta: Float[Array, ""],
+) -> tuple[Float[Array, 43], Float[Array, ""]]:
+    """``(candidate, candidate_delta)`` where its Delta is not worse than the chosen pose's,
+    else ``(chosen, chosen_delta)``: how the step's second opinions (the consensus refit, the
+    dense refinement) replace the winner."""
+    better = candidate_delta <= chosen_delta
+    return jnp.where(better, candidate, chosen), jnp.where(better, candidate_delta, chosen_delta)
+
+
 def consensus_refit(
     config: TrackerConfig,
     shape: body.BodyShape,
@@ -156,9 +169,7 @@ def consensus_refit(
     refit = fit_pose(
         chosen, shape, landmarks, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit
     )
-    delta_refit = score(refit.params[None])[0]
-    better = delta_refit <= chosen_delta
-    return jnp.where(better, refit.params, chosen), jnp.where(better, delta_refit, chosen_delta)
+    return keep_if_not_worse(refit.params, score(refit.params[None])[0], chosen, chosen_delta)
 
 
 def tracker_step(
@@ -238,9 +249,7 @@ def tracker_step(
     chosen = params[best]
     chosen_delta = deltas[best]
     if in_batch:
-        better = extra_delta <= chosen_delta
-        chosen = jnp.where(better, extra, chosen)
-        chosen_delta = jnp.where(better, extra_delta, chosen_delta)
+        chosen, chosen_delta = keep_if_not_worse(extra, extra_delta, chosen, chosen_delta)
         params = params.at[best].set(chosen)
     elif config.consensus_refit and config.method != "lvm":
         chosen, chosen_delta = consensus_refit(
@@ -260,10 +269,9 @@ def tracker_step(
             weight=config.refine_weight, sharpness=config.sharpness, d_M=config.d_M,
             settings=config.fit, known=rknown,
         )  # fmt: skip
-        d_ref = score(refined[None])[0]
-        better = d_ref <= chosen_delta
-        chosen = jnp.where(better, refined, chosen)
-        chosen_delta = jnp.where(better, d_ref, chosen_delta)
+        chosen, chosen_delta = keep_if_not_worse(
+            refined, score(refined[None])[0], chosen, chosen_delta
+        )
         params = params.at[best].set(chosen)
     hyps = reseed_hypotheses(config, params, deltas, best, chosen)
     kps = jax.vmap(lambda p: body.keypoints(shape, p))(params)

@@ -19,11 +19,12 @@ import pytest
 import posetrack as pt
 from posetrack import _body as B
 from posetrack import _select
+from posetrack._depthobs import NO_FLOOR, tracker_landmarks
 from posetrack._geometry import GEOMETRY_PARTNER, part_radii, partner_rest_lengths
 from posetrack._render import DEFAULT_SHARPNESS
 from posetrack._score import DEFAULT_D_M
-from posetrack._select import geometry_distance, landmark_subsets, landmark_weights
-from posetrack._step import consensus_refit, reseed_hypotheses
+from posetrack._select import consensus_set, geometry_distance, landmark_subsets, landmark_weights
+from posetrack._step import TrackState, consensus_refit, reseed_hypotheses
 
 FX = 60.0
 INTR = pt.Intrinsics.create(fx=FX, fy=FX, cx=31.5, cy=23.5, width=64, height=48)
@@ -484,10 +485,6 @@ def test_consensus_in_batch_fits_the_previous_output_beside_the_hypotheses(scene
     previous output refitted on its consensus set (computed here with ``fit_pose`` on its
     own), fitted and scored in the same batch as the hypotheses, and it takes the best
     hypothesis' place."""
-    from posetrack._depthobs import NO_FLOOR, tracker_landmarks
-    from posetrack._select import consensus_set
-    from posetrack._step import TrackState
-
     true, M = scene["true"], scene["M"]
     config = _config("mht_h", consensus_in_batch=True, score_width=64)
     turn = B.normalize_params(jnp.asarray(pt.facing_camera_params(3.5), jnp.float32))
