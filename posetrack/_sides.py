@@ -79,7 +79,11 @@ D on those clips within their noise (one clip decided it); on 42 tuning clips (s
 100-123, wide 100-117) the means of the four (generator, occlusion) D's were 64.1 mm judging
 2 frames, 63.3 judging 4, 71.3 without relabelling, so lag + 1 stays the default; 62.8 at
 lag + 1 once a group newly read inside another's judgement waited for its own
-(benchmarks/README.md).
+(benchmarks/README.md). An exchange the forward pass drops again within the judged frames
+(held in fewer than :attr:`SideSettings.online_min_held` of them, by default 2) is not kept
+whatever the depth says: a detector outlier's jump reads as a one-frame exchange, and on
+wide tuning clips a Delta sum a hair lower kept such readings (with the rule the mean of
+the four wide D's fell by 1.6 mm; benchmarks/README.md).
 
 The tracker relabels by default offline and online (``sides="auto"``; ``sides=None``,
 ``posetrack track --no-fix-sides`` turn it off); per-frame (the paper's tracker) it does not.
@@ -152,6 +156,14 @@ class SideSettings:
     the second tracking) and decide on less evidence: on 42 tuning clips 2 frames gave a mean
     D 0.8 mm above 4 (benchmarks/README.md; measured before the fix of judgements that
     overlap)."""
+    online_min_held: int = 2
+    """Online: an exchange is kept only if the forward pass, on the exchanged reading, still
+    reads the group exchanged in at least this many of the judged frames (the first
+    included; at most all of them, :attr:`online_frames`); until then the detections' labels
+    lead. A reading the forward pass drops again at once is a detector outlier's jump more
+    often than a swap (on a wide tuning clip one was kept by a Delta sum 0.7 % lower). 1: the
+    depth alone decides (before 2026-11-26 evening). Chosen on tuning clips by a rule written
+    before the run (benchmarks/README.md)."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -162,7 +174,12 @@ class SideSettings:
             raise ValueError(
                 f"SideSettings: arbitrate must be True or False, got {self.arbitrate!r}"
             )
-        for name, least in (("arbitrate_after", 0), ("online_frames", 1), ("online_rejudge", 1)):
+        for name, least in (
+            ("arbitrate_after", 0),
+            ("online_frames", 1),
+            ("online_rejudge", 1),
+            ("online_min_held", 1),
+        ):
             n = getattr(self, name)
             if n is None and name == "online_frames":
                 continue

@@ -371,6 +371,9 @@ class _Branch:
     snapshot: tuple
     deltas: list[float]
     out: tuple
+    rows: list = dataclasses.field(default_factory=list)
+    """Per judged frame, ``(out, exchanged, person)`` as this reading saw it (:meth:`Tracker.run`
+    records the kept reading's)."""
 
 
 @dataclasses.dataclass
@@ -380,8 +383,20 @@ class _OnlineArbitration:
     left: int
     exchanged: _Branch
     detected: _Branch | None = None
+    frames: int = 1
+    """Frames judged in all (``SideSettings.online_frames``)."""
+    groups: np.ndarray | None = None
+    """``bool (groups,)``: the groups being judged."""
+    held: int = 1
+    """Judged frames in which the exchanged reading's forward pass still read one of
+    ``groups`` exchanged (the first one did)."""
 
     def prefers_exchanged(self, sides: SideSettings) -> bool:
+        # Until the exchanged reading has held long enough the detections' labels lead (the
+        # leading reading's frames enter the poses published meanwhile); a stretch shorter
+        # than online_min_held frames needs all of them.
+        if self.held < min(sides.online_min_held, self.frames):
+            return False
         return prefer_exchanged(
             np.array(self.detected.deltas), np.array(self.exchanged.deltas),
             sides.arbitrate_margin,
@@ -636,6 +651,9 @@ class Tracker:
         self._new_exchanged = np.zeros(G, bool)
         self._since_judged = np.zeros(G, np.int64)
         self._arbitration: _OnlineArbitration | None = None
+        # The frames of the judgement that ended at the last update, as the kept reading saw
+        # them (``run`` rewrites their rows: each was recorded as the reading leading then).
+        self._judged_rows: list | None = None
 
     # -- set-up ------------------------------------------------------------------------------
 
@@ -970,11 +988,14 @@ class Tracker:
                 return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
-            arb = _OnlineArbitration(left=self._online_frames(), exchanged=first)
+            first.rows.append((out, self.exchanged.copy(), self._person))
+            n = self._online_frames()
+            arb = _OnlineArbitration(left=n, exchanged=first, frames=n, groups=new)
             self._restore_online(before)
             self._veto = self._veto | new
             out = self._update_once(depth, kp2d, conf)
             arb.detected = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
+            arb.detected.rows.append((out, self.exchanged.copy(), self._person))
             self._arbitration = arb
         else:
             for branch in (arb.exchanged, arb.detected):
@@ -982,11 +1003,15 @@ class Tracker:
                 branch.out = self._update_once(depth, kp2d, conf)
                 branch.snapshot = self._online_snapshot()
                 branch.deltas.append(_frame_delta(*branch.out))
+                branch.rows.append((branch.out, self.exchanged.copy(), self._person))
+                if branch is arb.exchanged and self.exchanged[arb.groups].any():
+                    arb.held += 1
         arb.left -= 1
         keep = arb.exchanged if arb.prefers_exchanged(self.sides) else arb.detected
         if arb.left <= 0:
             self._arbitration = None
             self.side_spans.append(arb.report(self._frames_seen, keep is arb.exchanged))
+            self._judged_rows = keep.rows
         self._restore_online(keep.snapshot)
         return keep.out
 
@@ -1133,7 +1158,7 @@ class Tracker:
         n_keep = 0 if self.refine is None or self.mode != "offline" else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
-        self.side_spans = []
+        self.side_spans, self._judged_rows = [], None
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
@@ -1227,15 +1252,37 @@ class Tracker:
         if self.mode == "online" and self.lagged is not None and self.lag > 0:
             i, p_lag, k_lag = self.lagged
             out.params[i], out.kp3[i] = p_lag, k_lag
-        out.status[t] = st
-        out.person[t] = self._person
-        if self.sides is not None and self._person >= 0:
-            out.exchanged[t] = self.exchanged
         out.num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
+        rows, self._judged_rows = self._judged_rows, None
+        if rows:
+            # An online judgement ended here: its earlier frames were recorded as the reading
+            # that led then; record them as the kept one saw them (the per-frame pose only
+            # where it is not yet published: published poses are never changed).
+            for j, ((e, s), ex, person) in enumerate(rows[:-1]):
+                tt = t - len(rows) + 1 + j
+                if tt >= 0:
+                    self._put_row(out, tt, e, s, ex, person, pose=tt > t - self.lag)
+        self._put_row(out, t, est, st, self.exchanged, self._person, pose=True)
         if progress is not None:
             progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
+        if n_keep and st == TRACKED:
+            _keep_best_observed(
+                kept, t * n_keep // T, int(out.has_d[t].sum()), lambda: (t, self._depth_fit)
+            )
+
+    def _put_row(
+        self, out: _RunOutputs, t: int, est, st: int, exchanged, person: int, *, pose: bool
+    ) -> None:
+        """Frame ``t``'s row of ``out`` from its update's ``(est, st)``; its pose too where
+        ``pose`` (else the row's pose is left as it is)."""
+        out.status[t] = st
+        out.person[t] = person
+        if self.sides is not None and person >= 0:
+            out.exchanged[t] = exchanged
+        out.delta[t], out.conf[t] = np.nan, 0.0
         if est is None:
-            if self._state is not None:
+            out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = 0, False, False, 0, 0
+            if pose and self._state is not None:
                 # The track lives but its person was not seen (nobody, or only other
                 # people): hold the last pose, as for a frame without observation.
                 out.params[t] = np.asarray(self._state.best)
@@ -1251,18 +1298,15 @@ class Tracker:
         )
         if st == NO_OBSERVATION:
             prev = self._state.best if self._state is not None else None
-            if prev is not None:
+            if pose and prev is not None:
                 out.params[t] = np.asarray(prev)
                 out.kp3[t] = np.asarray(body.keypoints(self.shape, prev))
             return
-        out.params[t] = np.asarray(est.params)
-        out.kp3[t] = np.asarray(est.keypoints3d)
+        if pose:
+            out.params[t] = np.asarray(est.params)
+            out.kp3[t] = np.asarray(est.keypoints3d)
         out.delta[t] = float(est.delta)
         out.conf[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
-        if n_keep and st == TRACKED:
-            _keep_best_observed(
-                kept, t * n_keep // T, int(out.has_d[t].sum()), lambda: (t, self._depth_fit)
-            )
 
     def _arbitrate_span(
         self, start: int, stop: int, out: _RunOutputs, kept: dict, frame, progress

@@ -118,6 +118,8 @@ def test_settings_and_labeller_reject_bad_values():
         pt.SideSettings(online_frames=0)
     with pytest.raises(ValueError, match="online_rejudge"):
         pt.SideSettings(online_rejudge=2.5)
+    with pytest.raises(ValueError, match="online_min_held"):
+        pt.SideSettings(online_min_held=0)
     with pytest.raises(ValueError, match="fx"):
         pt.SideLabeller(0.0)
     with pytest.raises(TypeError, match="SideSettings"):
