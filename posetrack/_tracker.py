@@ -1277,8 +1277,7 @@ class Tracker:
         ``pose`` (else the row's pose is left as it is)."""
         out.status[t] = st
         out.person[t] = person
-        if self.sides is not None and person >= 0:
-            out.exchanged[t] = exchanged
+        out.exchanged[t] = exchanged if self.sides is not None and person >= 0 else False
         out.delta[t], out.conf[t] = np.nan, 0.0
         if est is None:
             out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = 0, False, False, 0, 0

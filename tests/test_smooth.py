@@ -623,3 +623,17 @@ def test_online_an_exchange_the_2d_reading_drops_at_once_is_not_kept(
     judged = tr.run(*args)
     assert tr.side_spans[0][:2] == (10, 10 + k) and tr.side_spans[0][-1]
     assert judged.exchanged[10:20, 0].all()
+
+
+def test_online_run_records_a_judged_stretch_as_the_kept_reading_saw_it(clip, monkeypatch):
+    """Where the depth's preference turns during a judgement (here: as detected while fewer
+    than lag + 1 frames are judged, exchanged at the decision), the frames before the
+    decision were returned as the reading that led then; ``run`` records them as the kept
+    reading saw them: the labels exchanged in every judged frame."""
+    k = pt.ONLINE_LAG + 1
+    monkeypatch.setattr(_tracker, "prefer_exchanged", lambda a, b, m: len(b) >= k)
+    _misread(monkeypatch, clip, arms=range(10, 20), legs=range(0))
+    tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=None)
+    judged = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
+    assert tr.side_spans[0][:2] == (10, 10 + k) and tr.side_spans[0][-1]
+    assert judged.exchanged[10 : 10 + k, 0].all() and not judged.exchanged[:10].any()
