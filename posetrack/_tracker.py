@@ -366,14 +366,22 @@ def _frame_delta(est: FrameEstimate | None, status: int) -> float:
 @dataclasses.dataclass
 class _Branch:
     """One reading of a stretch under online arbitration: the tracker's state after its
-    newest frame, its frames' Delta, and what :meth:`Tracker.update` returned for it."""
+    newest frame and, per judged frame, what :meth:`Tracker.update` returned for it."""
 
     snapshot: tuple
-    deltas: list[float]
-    out: tuple
-    rows: list = dataclasses.field(default_factory=list)
+    rows: list
     """Per judged frame, ``(out, exchanged, person)`` as this reading saw it (:meth:`Tracker.run`
     records the kept reading's)."""
+
+    @property
+    def out(self) -> tuple:
+        """What :meth:`Tracker.update` returned for the newest frame."""
+        return self.rows[-1][0]
+
+    @property
+    def deltas(self) -> list[float]:
+        """Each judged frame's Delta (NaN where it has none)."""
+        return [_frame_delta(*row[0]) for row in self.rows]
 
 
 @dataclasses.dataclass
@@ -383,8 +391,6 @@ class _OnlineArbitration:
     left: int
     exchanged: _Branch
     detected: _Branch | None = None
-    frames: int = 1
-    """Frames judged in all (``SideSettings.online_frames``)."""
     groups: np.ndarray | None = None
     """``bool (groups,)``: the groups being judged."""
     held: int = 1
@@ -395,7 +401,8 @@ class _OnlineArbitration:
         # Until the exchanged reading has held long enough the detections' labels lead (the
         # leading reading's frames enter the poses published meanwhile); a stretch shorter
         # than online_min_held frames needs all of them.
-        if self.held < min(sides.online_min_held, self.frames):
+        frames = len(self.exchanged.rows) + self.left
+        if self.held < min(sides.online_min_held, frames):
             return False
         return prefer_exchanged(
             np.array(self.detected.deltas), np.array(self.exchanged.deltas),
@@ -987,23 +994,18 @@ class Tracker:
             if not new.any() or self._person < 0:
                 return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
-            first = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
-            first.rows.append((out, self.exchanged.copy(), self._person))
-            n = self._online_frames()
-            arb = _OnlineArbitration(left=n, exchanged=first, frames=n, groups=new)
+            first = _Branch(self._online_snapshot(), [self._judged_row(out)])
+            arb = _OnlineArbitration(left=self._online_frames(), exchanged=first, groups=new)
             self._restore_online(before)
             self._veto = self._veto | new
             out = self._update_once(depth, kp2d, conf)
-            arb.detected = _Branch(self._online_snapshot(), [_frame_delta(*out)], out)
-            arb.detected.rows.append((out, self.exchanged.copy(), self._person))
+            arb.detected = _Branch(self._online_snapshot(), [self._judged_row(out)])
             self._arbitration = arb
         else:
             for branch in (arb.exchanged, arb.detected):
                 self._restore_online(branch.snapshot)
-                branch.out = self._update_once(depth, kp2d, conf)
+                branch.rows.append(self._judged_row(self._update_once(depth, kp2d, conf)))
                 branch.snapshot = self._online_snapshot()
-                branch.deltas.append(_frame_delta(*branch.out))
-                branch.rows.append((branch.out, self.exchanged.copy(), self._person))
                 if branch is arb.exchanged and self.exchanged[arb.groups].any():
                     arb.held += 1
         arb.left -= 1
@@ -1014,6 +1016,11 @@ class Tracker:
             self._judged_rows = keep.rows
         self._restore_online(keep.snapshot)
         return keep.out
+
+    def _judged_row(self, out: tuple) -> tuple:
+        """A judged frame's row of a :class:`_Branch`: what the update returned, with the
+        labelling and the person it used."""
+        return out, self.exchanged.copy(), self._person
 
     def _online_frames(self) -> int:
         n = self.sides.online_frames
