@@ -46,10 +46,12 @@ BEYOND_THE_PAPER: dict[str, bool | int] = {
     "reseed": False,
     "consensus_refit": False,
     "limb_hypotheses": 0,
+    "occlusion_gate": False,
 }
 
 _POSITIVE = (
     "sigma_g", "sigma_h", "d_hmax", "d_M", "sharpness", "body_range", "limb_distance",
+    "occlusion_margin", "occlusion_tolerance",
 )  # fmt: skip
 
 
@@ -155,6 +157,19 @@ class TrackerConfig(eqx.Module):
     limb_distance: float = 0.2
     """A landmark enters a limb hypothesis' fit if it lies within this of the re-initialised
     pose (metres). Traced."""
+    occlusion_gate: bool = eqx.field(default=False, static=True)
+    """Every other hypothesis leaves out the 3D landmarks that the previous output says were
+    lifted onto a body part hiding the joint (``posetrack._visibility``: in a side view the
+    far arm's keypoints are lifted onto the torso's surface, 20-30 cm too close), fitting
+    their 2D detections instead; the other hypotheses keep them and Delta decides. (Dropping
+    them for every hypothesis locked wrong poses in.) Not in the paper."""
+    occlusion_margin: float = 0.1
+    """Metres: a landmark counts as hidden when both the model's nearest surface on its ray
+    and the landmark lie more than this in front of the model's joint. Traced."""
+    occlusion_tolerance: float = 0.06
+    """Metres: a hidden landmark must also be explained by the hiding part: the surface the
+    sensor saw lies within this of that part's surface on the detection's ray (farther in
+    front, the limb itself was seen: the model is wrong and the landmark stays). Traced."""
     invalid_is_unknown: bool = eqx.field(default=True, static=True)
     """Delta ignores rendered body over pixels without valid depth (holes, removed areas): the
     sensor cannot say the body is not there. False: Eq. (3) as written, where such pixels count

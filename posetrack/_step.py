@@ -23,11 +23,13 @@ from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
+from ._geometry import surface_offsets
 from ._limbs import limb_hypotheses
 from ._observe import Landmarks
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
+from ._visibility import self_occluded
 
 
 class TrackState(eqx.Module):
@@ -201,6 +203,18 @@ def tracker_step(
     key, key_next = jax.random.split(state.key)
     lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
+    if config.occlusion_gate:
+        # Every other hypothesis leaves out the 3D landmarks that the previous output says
+        # were lifted onto a body part hiding the joint (``_visibility.py``), fitting their 2D
+        # detections instead; the others keep them, and Delta decides between the two.
+        offsets = surface_offsets(shape) if config.surface_offset else 0.0
+        hidden = self_occluded(
+            shape, state.best, lm, intrinsics, offsets, config.occlusion_margin,
+            config.occlusion_tolerance,
+        )  # fmt: skip
+        gated = (jnp.arange(use3d.shape[0]) % 2 == 1)[:, None] & hidden[None, :]
+        use3d = use3d & ~gated
+        use2d = use2d | (gated & lm.detected[None, :])
     starts, lm_fit = state.hypotheses, lm
     N, S = starts.shape[0], config.num_limb_hypotheses
     if S:

@@ -1,0 +1,102 @@
+"""Self-occlusion: 3D landmarks the body model says cannot be what the depth camera saw.
+
+A keypoint is lifted to 3D at the depth measured around its detected pixel (``_observe.py``).
+Where another part of the body lies in front of the joint on that pixel's ray (the far arm
+behind the torso in a side view, the far ear behind the head), the depth is the occluder's
+front surface, 20-30 cm too close to the camera, and the 3D residual of Eq. (1) pulls the
+joint onto it. The paper's flag F_i only asks whether depth is valid there.
+
+:func:`self_occluded` casts rays against the capsules of a reference pose (the previous
+output) in closed form (``_render.capsule_fields``) and flags a landmark when all three hold:
+
+(a) on the ray through the model's joint, a part that does not hold the joint lies more than
+    ``margin`` in front of it (the model says the joint is hidden);
+(b) the surface the sensor saw (the landmark less its surface offset) lies more than
+    ``margin`` in front of the model's joint;
+(c) on the ray through the detected keypoint, that surface lies within ``tolerance`` of the
+    model's hiding part (the observation is explained by the occluder).
+
+(c) is the way back from a wrong model: an arm the model holds behind the torso while the
+real one is in front of it is seen well in front of the torso's surface, so its landmark stays
+and pulls the arm out. (b) alone (tried: ``benchmarks/README.md``) dropped the landmarks of
+every fast motion toward the camera and locked poses in; (a) with (b), without (c), locked in
+after a detector's outliers had put the model's arm behind the torso. A flagged landmark keeps
+its 2D residual (the detection is still evidence across the image plane). Not in the paper.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from . import _body as body
+from ._camera import Intrinsics
+from ._observe import Landmarks
+from ._render import Capsules, capsule_fields, capsule_params
+
+
+def self_occluded(
+    shape: body.BodyShape,
+    params: Float[Array, 43],
+    landmarks: Landmarks,
+    intrinsics: Intrinsics,
+    offsets: Float[Array, " kpt"] | float,
+    margin: float | Array,
+    tolerance: float | Array,
+) -> Bool[Array, " kpt"]:
+    """Which 3D landmarks the pose ``params`` says are the surface of a body part hiding the
+    joint.
+
+    Args:
+        shape: body dimensions.
+        params: (43,) the reference pose (the previous frame's output).
+        landmarks: this frame's lifted landmarks.
+        intrinsics: the camera the keypoints were detected in.
+        offsets: the depth each landmark was pushed back from the surface at lifting (metres,
+            ``_geometry.surface_offsets`` or 0).
+        margin: metres; the hiding surface and the landmark must lie this far in front of the
+            model's joint.
+        tolerance: metres; the seen surface must lie within this of the hiding part's surface
+            on the detection's ray (else something else, the limb itself, was seen).
+
+    Returns:
+        (18,) True where the landmark has depth and all three tests hold (module docstring).
+    """
+    a, b, radius = body.capsules(shape, params)
+    p = {k: v[None, None, :] for k, v in capsule_params(Capsules(a=a, b=b, radius=radius)).items()}
+    joints = body.keypoints(shape, params)
+    # Rays through the model's joints and through the detected keypoints (z = 1).
+    z_safe = jnp.maximum(joints[:, 2], 1e-3)
+    u, v = landmarks.keypoints2d[:, 0], landmarks.keypoints2d[:, 1]
+    x = jnp.stack([joints[:, 0] / z_safe, (u - intrinsics.cx) / intrinsics.fx])[..., None]
+    y = jnp.stack([joints[:, 1] / z_safe, (v - intrinsics.cy) / intrinsics.fy])[..., None]
+    delta, z = capsule_fields(x, y, p)  # (2, kpt, capsule)
+    # A capsule that holds the joint (its own limb, the torso around a hip) is not in front
+    # of it: only the other parts can hide it.
+    seg = b - a
+    s = jnp.clip(
+        jnp.einsum("kpc,pc->kp", joints[:, None, :] - a[None], seg)
+        / jnp.maximum(jnp.sum(seg * seg, axis=-1), 1e-9)[None, :],
+        0.0, 1.0,
+    )  # fmt: skip
+    gap = jnp.linalg.norm(joints[:, None, :] - (a[None] + s[..., None] * seg[None]), axis=-1)
+    other = gap > radius[None, :]
+    front = jnp.min(jnp.where((delta < 0.0) & other[None], z, jnp.inf), axis=-1)  # (2, kpt)
+    joint_z = joints[:, 2]
+    seen = landmarks.points3d[:, 2] - offsets  # the surface the sensor saw
+    hidden = front[0] < joint_z - margin
+    in_front = seen < joint_z - margin
+    explained = jnp.abs(seen - front[1]) < tolerance
+    return landmarks.has_depth & hidden & in_front & explained
+
+
+def without_3d(landmarks: Landmarks, drop: Bool[Array, " kpt"]) -> Landmarks:
+    """``landmarks`` with the 3D landmarks ``drop`` removed (F_i false, point zeroed); their
+    2D detections stay."""
+    return Landmarks(
+        keypoints2d=landmarks.keypoints2d,
+        confidence=landmarks.confidence,
+        points3d=jnp.where(drop[:, None], 0.0, landmarks.points3d),
+        detected=landmarks.detected,
+        has_depth=landmarks.has_depth & ~drop,
+    )

@@ -1,0 +1,158 @@
+"""Self-occlusion of lifted landmarks (``_visibility.py``): a side view whose far arm hangs
+behind the torso, with the far wrist's landmark lifted onto the torso's surface (as the depth
+camera sees it) or seen where it really is; each case's expectation follows from the scene."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import posetrack as pt
+from posetrack import _body as B
+from posetrack._depthobs import NO_FLOOR
+from posetrack._geometry import surface_offsets
+from posetrack._rotation import quat_multiply
+from posetrack._visibility import self_occluded, without_3d
+
+INTR = pt.Intrinsics.create(fx=280.0, fy=280.0, cx=159.5, cy=119.5, width=320, height=240)
+SHAPE = pt.BodyShape.default(jnp.float32)
+R_WRIST, L_WRIST, L_ELBOW = 4, 7, 6
+MARGIN, TOL = 0.1, 0.06
+
+
+def _project(p):
+    p = np.asarray(p, np.float64)
+    return np.stack([280.0 * p[:, 0] / p[:, 2] + 159.5, 280.0 * p[:, 1] / p[:, 2] + 119.5], -1)
+
+
+@pytest.fixture(scope="module")
+def side():
+    """The rest pose at 2.5 m turned 90 degrees about the vertical: one arm toward the
+    camera side, the other behind the torso. Returns the pose, its keypoints, the rendered
+    depth and which wrist is the far one."""
+    p = pt.facing_camera_params(2.5, jnp.float32)
+    half = np.pi / 4  # a 90 degree turn about the camera's y axis
+    yaw = jnp.asarray([np.cos(half), 0.0, np.sin(half), 0.0], jnp.float32)
+    p = B.normalize_params(p.at[3:7].set(quat_multiply(yaw, p[3:7])))
+    kps = np.asarray(pt.keypoints(SHAPE, p), np.float64)
+    a, b, r = B.capsules(SHAPE, p)
+    depth, _ = pt.render_depth(pt.Capsules(a=a, b=b, radius=r), INTR, sharpness=None)
+    far = L_WRIST if kps[L_WRIST, 2] > kps[R_WRIST, 2] else R_WRIST
+    near = R_WRIST + L_WRIST - far
+    return p, kps, np.asarray(depth), far, near
+
+
+def _landmarks(kps, points3d):
+    uv = _project(kps)
+    return pt.Landmarks(
+        keypoints2d=jnp.asarray(uv, jnp.float32),
+        confidence=jnp.ones(18, jnp.float32),
+        points3d=jnp.asarray(points3d, jnp.float32),
+        detected=jnp.ones(18, bool),
+        has_depth=jnp.ones(18, bool),
+    )
+
+
+@pytest.fixture(scope="module")
+def occluded():
+    return jax.jit(self_occluded)
+
+
+def _seen_at(depth, kps, i):
+    """The rendered surface depth at keypoint i's pixel (what the sensor sees there)."""
+    u, v = np.round(_project(kps)[i]).astype(int)
+    return float(depth[v, u])
+
+
+def test_the_scene_hides_the_far_wrist(side):
+    _, kps, depth, far, near = side
+    # The premise of the other tests: the far wrist's pixel shows a surface well in front of
+    # it (the torso), the near wrist's shows the wrist itself.
+    assert _seen_at(depth, kps, far) < kps[far, 2] - 0.15
+    assert abs(_seen_at(depth, kps, near) - kps[near, 2]) < 0.06
+
+
+def test_a_landmark_lifted_onto_the_occluder_is_dropped(side, occluded):
+    p, kps, depth, far, near = side
+    off = np.asarray(surface_offsets(SHAPE))
+    pts = kps.copy()
+    pts[far, 2] = _seen_at(depth, kps, far) + off[far]  # how lifting places it
+    hidden = np.asarray(occluded(SHAPE, p, _landmarks(kps, pts), INTR, off, MARGIN, TOL))
+    assert hidden[far]
+    assert not hidden[near]
+    # Only the far side's joints can be hidden; nothing of the near arm or the head.
+    assert not hidden[[0, 1, 2, 3, 4, 14, 15]].any() or far == R_WRIST
+
+
+def test_a_landmark_where_the_joint_really_is_stays(side, occluded):
+    p, kps, _, far, _ = side
+    off = np.asarray(surface_offsets(SHAPE))
+    # (b): seen at the joint's own depth (e.g. a far arm visible past the torso's edge).
+    hidden = np.asarray(occluded(SHAPE, p, _landmarks(kps, kps), INTR, off, MARGIN, TOL))
+    assert not hidden.any()
+
+
+def test_a_limb_seen_in_front_of_the_occluder_stays(side, occluded):
+    """(c), the way back: the model holds the arm behind the torso, but the sensor saw a
+    surface 15 cm in front of the torso's: the real arm is there, its landmark must stay."""
+    p, kps, depth, far, _ = side
+    off = np.asarray(surface_offsets(SHAPE))
+    pts = kps.copy()
+    pts[far, 2] = _seen_at(depth, kps, far) - 0.15 + off[far]
+    hidden = np.asarray(occluded(SHAPE, p, _landmarks(kps, pts), INTR, off, MARGIN, TOL))
+    assert not hidden[far]
+    # ... and with the tolerance widened past that gap it would be dropped (the test bites).
+    hidden = np.asarray(occluded(SHAPE, p, _landmarks(kps, pts), INTR, off, MARGIN, 0.2))
+    assert hidden[far]
+
+
+def test_facing_the_camera_nothing_is_hidden(occluded):
+    p = pt.facing_camera_params(2.5, jnp.float32)
+    kps = np.asarray(pt.keypoints(SHAPE, p), np.float64)
+    off = np.asarray(surface_offsets(SHAPE))
+    pts = kps.copy()
+    hidden = np.asarray(occluded(SHAPE, p, _landmarks(kps, pts), INTR, off, MARGIN, TOL))
+    assert not hidden.any()
+
+
+def test_without_3d_keeps_the_2d_detection(side):
+    _, kps, _, far, _ = side
+    lm = _landmarks(kps, kps)
+    drop = jnp.zeros(18, bool).at[far].set(True)
+    out = without_3d(lm, drop)
+    assert not bool(out.has_depth[far]) and bool(out.detected[far])
+    np.testing.assert_array_equal(np.asarray(out.points3d[far]), 0.0)
+    np.testing.assert_array_equal(np.asarray(out.keypoints2d), np.asarray(lm.keypoints2d))
+    assert int(out.has_depth.sum()) == 17
+
+
+def test_the_step_leaves_hidden_landmarks_to_every_other_hypothesis(side):
+    """``TrackerConfig.occlusion_gate`` in the jitted step: the far wrist, lifted from the
+    rendered depth onto the torso, is fitted in 2D only by the odd hypotheses, while the even
+    ones draw its 3D landmark as usual (so the gate, not the temporal weight, kept it out)."""
+    p, kps, depth, far, _ = side
+    config = pt.TrackerConfig(occlusion_gate=True, score_width=80, score_height=60)
+    n = config.n
+    off = np.asarray(surface_offsets(SHAPE))
+    previous = kps.copy()
+    # W^h compares with the hypotheses' previous keypoints: put the far wrist's where its
+    # landmark will be, so the temporal weight favours drawing it.
+    previous[far, 2] = _seen_at(depth, kps, far) + off[far]
+    state = pt.TrackState(
+        hypotheses=jnp.tile(p[None], (n, 1)),
+        previous=jnp.tile(jnp.asarray(previous, jnp.float32)[None], (n, 1, 1)),
+        best=p,
+        key=jax.random.PRNGKey(0),
+    )
+    kp2d = jnp.asarray(_project(kps), jnp.float32)
+    conf = jnp.ones(18, jnp.float32)
+    floor = jnp.asarray(NO_FLOOR, jnp.float32)
+    step = jax.jit(pt.tracker_step)
+    _, est = step(config, SHAPE, INTR, floor, state, jnp.asarray(depth), kp2d, conf)
+    lm = est.landmarks
+    assert bool(lm.has_depth[far])  # the landmark itself is kept (the even ones may use it)
+    assert float(lm.points3d[far, 2]) < kps[far, 2] - 0.15  # lifted onto the torso
+    used3d, used2d = np.asarray(est.used3d), np.asarray(est.used2d)
+    assert not used3d[1::2, far].any()
+    assert used2d[1::2, far].all()
+    assert used3d[0::2, far].sum() >= 3
