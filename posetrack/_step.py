@@ -214,7 +214,7 @@ def tracker_step(
         )  # fmt: skip
         gated = (jnp.arange(use3d.shape[0]) % 2 == 1)[:, None] & hidden[None, :]
         use3d = use3d & ~gated
-        use2d = use2d | (gated & lm.detected[None, :])
+        use2d = use2d | gated  # flagged landmarks have depth, so they were detected
     starts, lm_fit = state.hypotheses, lm
     N, S = starts.shape[0], config.num_limb_hypotheses
     if S:

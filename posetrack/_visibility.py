@@ -20,8 +20,13 @@ output) in closed form (``_render.capsule_fields``) and flags a landmark when al
 real one is in front of it is seen well in front of the torso's surface, so its landmark stays
 and pulls the arm out. (b) alone (tried: ``benchmarks/README.md``) dropped the landmarks of
 every fast motion toward the camera and locked poses in; (a) with (b), without (c), locked in
-after a detector's outliers had put the model's arm behind the torso. A flagged landmark keeps
-its 2D residual (the detection is still evidence across the image plane). Not in the paper.
+after a detector's outliers had put the model's arm behind the torso.
+
+How the tracker uses it (``TrackerConfig.occlusion_gate``, off by default): every other
+hypothesis leaves the flagged 3D landmarks out and fits their 2D detections instead (the
+detection is still evidence across the image plane); the other hypotheses keep them, and
+Delta decides. Taking them from every hypothesis locked wrong poses in even with (c). Not in
+the paper.
 """
 
 from __future__ import annotations
@@ -88,15 +93,3 @@ def self_occluded(
     in_front = seen < joint_z - margin
     explained = jnp.abs(seen - front[1]) < tolerance
     return landmarks.has_depth & hidden & in_front & explained
-
-
-def without_3d(landmarks: Landmarks, drop: Bool[Array, " kpt"]) -> Landmarks:
-    """``landmarks`` with the 3D landmarks ``drop`` removed (F_i false, point zeroed); their
-    2D detections stay."""
-    return Landmarks(
-        keypoints2d=landmarks.keypoints2d,
-        confidence=landmarks.confidence,
-        points3d=jnp.where(drop[:, None], 0.0, landmarks.points3d),
-        detected=landmarks.detected,
-        has_depth=landmarks.has_depth & ~drop,
-    )
