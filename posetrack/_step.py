@@ -3,8 +3,9 @@
 One frame is ONE jitted call (:func:`tracker_step`): lifting, landmark weights and subset
 sampling (``_select.py``), N Levenberg-Marquardt fits (vmapped, ``_fit.py``), the observation
 (``_depthobs.py``), N renders and Delta scores (Eq. (3), ``_render.py``), selection of the best
-hypothesis, and what this project adds around it: the consensus refit, reseeding, the optional
-dense refinement. Shapes are static: a configuration compiles once and then runs every frame
+hypothesis, and what this project adds around it: the consensus refit, reseeding, and the
+optional limb hypotheses (``_limbs.py``), self-occlusion gate (``_visibility.py``) and dense
+refinement. Shapes are static: a configuration compiles once and then runs every frame
 without recompiling. The host-side ``Tracker`` (``_tracker.py``) adds what is not per-frame
 math: body-shape estimation, initialisation from observations, track-loss handling.
 """
