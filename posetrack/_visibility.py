@@ -35,7 +35,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from . import _body as body
-from ._camera import Intrinsics
+from ._camera import Intrinsics, backproject
 from ._observe import Landmarks
 from ._render import Capsules, capsule_fields, capsule_params
 
@@ -68,20 +68,18 @@ def self_occluded(
         (18,) True where the landmark has depth and all three tests hold (module docstring).
     """
     a, b, radius = body.capsules(shape, params)
-    p = {k: v[None, None, :] for k, v in capsule_params(Capsules(a=a, b=b, radius=radius)).items()}
+    caps = capsule_params(Capsules(a=a, b=b, radius=radius))
     joints = body.keypoints(shape, params)
     # Rays through the model's joints and through the detected keypoints (z = 1).
-    z_safe = jnp.maximum(joints[:, 2], 1e-3)
-    u, v = landmarks.keypoints2d[:, 0], landmarks.keypoints2d[:, 1]
-    x = jnp.stack([joints[:, 0] / z_safe, (u - intrinsics.cx) / intrinsics.fx])[..., None]
-    y = jnp.stack([joints[:, 1] / z_safe, (v - intrinsics.cy) / intrinsics.fy])[..., None]
-    delta, z = capsule_fields(x, y, p)  # (2, kpt, capsule)
+    ray_det = backproject(intrinsics, landmarks.keypoints2d, jnp.ones_like(landmarks.confidence))
+    rays = jnp.stack([joints / jnp.maximum(joints[:, 2:], 1e-3), ray_det])  # (2, kpt, 3)
+    p = {k: v[None, None, :] for k, v in caps.items()}
+    delta, z = capsule_fields(rays[..., 0:1], rays[..., 1:2], p)  # (2, kpt, capsule)
     # A capsule that holds the joint (its own limb, the torso around a hip) is not in front
     # of it: only the other parts can hide it.
     seg = b - a
     s = jnp.clip(
-        jnp.einsum("kpc,pc->kp", joints[:, None, :] - a[None], seg)
-        / jnp.maximum(jnp.sum(seg * seg, axis=-1), 1e-9)[None, :],
+        jnp.einsum("kpc,pc->kp", joints[:, None, :] - a[None], seg) * caps["inv_dd"][None, :],
         0.0, 1.0,
     )  # fmt: skip
     gap = jnp.linalg.norm(joints[:, None, :] - (a[None] + s[..., None] * seg[None]), axis=-1)
