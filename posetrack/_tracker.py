@@ -930,7 +930,8 @@ class Tracker:
     # -- per frame ---------------------------------------------------------------------------
 
     def update(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
-        """Process one frame. Returns (estimate or None, status code).
+        """Process one frame. Returns (estimate or None, status code); the estimate's fields
+        are NumPy arrays, fetched from the device in one transfer.
 
         In ``mode="online"`` the motion model runs after the step. With ``lag=L`` (default
         :data:`ONLINE_LAG`, 3) the estimate's ``params`` and ``keypoints3d`` are this frame's
@@ -1103,6 +1104,10 @@ class Tracker:
         )
         jax.block_until_ready(est)
         dt = time.perf_counter() - t0
+        # Every field the host reads below and in ``run`` comes back in one transfer: read one
+        # by one from the device they were ~20 round trips a frame (4 ms of a 14 ms frame on
+        # a GPU whose step takes 4; benchmarks/chunks.py). The batched step's are NumPy already.
+        est = jax.device_get(est)
         if self._step_calls == 0:  # the first call compiles
             self.compile_s += dt
         else:
