@@ -974,7 +974,7 @@ class Tracker:
         if newest is not None and observed and self.lag == 0:
             p, k = newest
             est = eqx.tree_at(
-                lambda e: (e.params, e.keypoints3d), est, (jnp.asarray(p), jnp.asarray(k))
+                lambda e: (e.params, e.keypoints3d), est, (np.asarray(p), np.asarray(k))
             )
         return est, st
 

@@ -64,6 +64,8 @@ def test_no_recompilation_over_frames(seq):
         est, status = tracker.update(seq.depth[t], seq.keypoints2d[t], seq.confidence[t])
         assert est is not None and status in (TRACKED, LOST)
         assert est.deltas.shape == (config.n,)
+        # The frame's results come back to the host in one transfer, as NumPy arrays.
+        assert all(isinstance(x, np.ndarray) for x in jax.tree.leaves(est))
     # Float fields (exclusion ratios, sigmas, d_M, ...) are traced: a sweep reuses the step.
     other = config.replace(r=0.05, R=0.15, sigma_h=0.3, d_hmax=0.2, d_M=0.1, lost_delta=0.5)
     tracker2 = pt.Tracker(seq.intrinsics, other, shape=tracker.shape)
