@@ -430,6 +430,12 @@ def tracker_observation(
     return z_d, z_fg, known, small_intr
 
 
+def landmark_offsets(config: TrackerConfig, shape: BodyShape) -> Float[Array, " kpt"] | float:
+    """How far the tracker's lifting pushes each landmark back from the seen surface (metres):
+    :func:`~posetrack._geometry.surface_offsets` with ``config.surface_offset``, else 0."""
+    return surface_offsets(shape) if config.surface_offset else 0.0
+
+
 def tracker_landmarks(
     config: TrackerConfig,
     shape: BodyShape,
@@ -441,9 +447,8 @@ def tracker_landmarks(
     """:func:`~posetrack.lift_keypoints` with the tracker's settings: its lifting window and
     confidence threshold, and with ``config.surface_offset`` each landmark pushed back by
     :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre)."""
-    offset = surface_offsets(shape) if config.surface_offset else 0.0
     return lift_keypoints(
         depth, keypoints2d, confidence, intrinsics,
         window=config.lift_window, confidence_threshold=config.confidence_threshold,
-        depth_offset=offset,
+        depth_offset=landmark_offsets(config, shape),
     )  # fmt: skip

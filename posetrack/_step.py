@@ -22,9 +22,8 @@ from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 from . import _body as body
 from ._camera import Intrinsics
 from ._config import TrackerConfig
-from ._depthobs import tracker_landmarks, tracker_observation
+from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
-from ._geometry import surface_offsets
 from ._limbs import limb_hypotheses
 from ._observe import Landmarks
 from ._refine import refine_pose
@@ -208,10 +207,9 @@ def tracker_step(
         # Every other hypothesis leaves out the 3D landmarks that the previous output says
         # were lifted onto a body part hiding the joint (``_visibility.py``), fitting their 2D
         # detections instead; the others keep them, and Delta decides between the two.
-        offsets = surface_offsets(shape) if config.surface_offset else 0.0
         hidden = self_occluded(
-            shape, state.best, lm, intrinsics, offsets, config.occlusion_margin,
-            config.occlusion_tolerance,
+            shape, state.best, lm, intrinsics, landmark_offsets(config, shape),
+            config.occlusion_margin, config.occlusion_tolerance,
         )  # fmt: skip
         gated = (jnp.arange(use3d.shape[0]) % 2 == 1)[:, None] & hidden[None, :]
         use3d = use3d & ~gated
