@@ -628,7 +628,7 @@ class Tracker:
         self._window_valid[-1] = valid
         has_pose = frame >= 0 and self._window_valid[i]
         if has_pose:
-            pose, pose_kps = np.asarray(pose), np.asarray(pose_kps)
+            pose, pose_kps = jax.device_get((pose, pose_kps))  # one transfer
         self._motion_times.append(time.perf_counter() - t0)
         self.lagged = (frame, pose, pose_kps) if has_pose else None
         return self.lagged[1:] if has_pose else None
