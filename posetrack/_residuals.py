@@ -24,7 +24,9 @@ Two choices the paper leaves open, made here and measured in ``benchmarks/``:
 Two weak regularisers keep every fit well-posed: ``|q|^2 - 1`` per quaternion (the scale of a
 quaternion is otherwise free, normalisation happens inside the kinematics) and a pull toward
 the starting pose (a joint whose landmarks are all excluded by a subset is otherwise
-unconstrained, and so are the limbs' twists).
+unconstrained, and so are the limbs' twists). Optionally (``ResidualSettings.leg_limits``, not in
+the paper) soft anatomical limits keep knees from bending forward or sideways and thighs from
+twisting past 45 degrees (:func:`leg_limit_residuals`).
 """
 
 from __future__ import annotations
@@ -52,12 +54,17 @@ class ResidualSettings:
     """Weight of the pull toward the starting pose (per parameter, metres-equivalent)."""
     unit_weight: float = 0.1
     """Weight of the ``|q|^2 - 1`` residuals."""
+    leg_limits: float = 0.0
+    """Weight of the soft anatomical limits on the legs (:func:`leg_limit_residuals`; 0: none,
+    the paper's model)."""
 
     def __post_init__(self):
         if self.loss not in ("l1", "l2"):
             raise ValueError(f"ResidualSettings.loss must be 'l1' or 'l2', got {self.loss!r}")
         if not self.eps > 0:
             raise ValueError(f"ResidualSettings.eps must be positive, got {self.eps}")
+        if not self.leg_limits >= 0:
+            raise ValueError(f"ResidualSettings.leg_limits must be >= 0, got {self.leg_limits}")
 
 
 def pixel_scale(
@@ -105,9 +112,59 @@ def _sqrt_reweight(e: Array, eps: float) -> Array:
 
 def regulariser_residuals(
     params: Float[Array, 43], start_params: Float[Array, 43], settings: ResidualSettings
-) -> Float[Array, 53]:
-    """``unit_weight (|q_j|^2 - 1)`` for the 10 quaternions and ``prior_weight (x - x_start)``."""
+) -> Float[Array, " reg"]:
+    """``unit_weight (|q_j|^2 - 1)`` for the 10 quaternions, ``prior_weight (x - x_start)``
+    and, where ``settings.leg_limits`` > 0, the legs' limits (:func:`leg_limit_residuals`)."""
     q = params[3:].reshape(NUM_JOINTS, 4)
     unit = settings.unit_weight * (jnp.sum(q * q, axis=-1) - 1.0)
     prior = settings.prior_weight * (params - start_params)
-    return jnp.concatenate([unit, prior])
+    parts = [unit, prior]
+    if settings.leg_limits > 0:
+        parts.append(settings.leg_limits * leg_limit_residuals(params))
+    return jnp.concatenate(parts)
+
+
+#: Quaternion slots (index into the 10 frames of ``params[3:]``) of the hips and knees.
+_HIPS, _KNEES = (6, 8), (7, 9)
+#: Half-range of a hip's rotation about the thigh's own axis (internal / external rotation).
+HIP_TWIST_MAX_DEG = 45.0
+#: How far the shank may bend forward of the thigh's line (hyperextension) and sideways. No
+#: slack forward: with 10 degrees a fit started a little forward stopped at the edge with the
+#: ankle's 2D keypoint unmet (the straight knee between is a barrier for the keypoint); from
+#: 0 the limit pushes it through into the flexion the keypoint allows (tests/test_fit.py).
+KNEE_HYPER_MAX_DEG = 0.0
+KNEE_SIDE_MAX_DEG = 15.0
+
+
+def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
+    """Soft anatomical limits of the legs, zero inside the range (not in the paper).
+
+    The model's knees are full quaternions, so a shank may bend forward of the thigh as
+    easily as backward: where an ankle's keypoint is missing or only 2D, the fit can fold the
+    shank toward the camera along the keypoint's ray (measured on wide tuning clips: knees bent
+    15-77 degrees the wrong way in up to 30 % of the frames, the truth never more than a few).
+    A knee bends backward about the thigh's left axis only; the hip's rotation about the
+    thigh's own axis is what points that hinge, and it is limited too (else a half turn of the
+    thigh would make any forward fold a backward one). Per leg:
+
+    * the hip's twist (swing-twist decomposition about the thigh's axis, body y):
+      ``max(0, |sin(twist/2)| - sin(HIP_TWIST_MAX_DEG/2))``;
+    * the shank's direction ``d`` in the thigh's frame (rest: straight down, -y; the body's z
+      is forward): ``max(0, d_z - sin(KNEE_HYPER_MAX_DEG))`` (bent forward) and
+      ``max(0, |d_x| - sin(KNEE_SIDE_MAX_DEG))`` (bent sideways).
+
+    The knee's own twist moves no keypoint or surface and stays free.
+    """
+    q = params[3:].reshape(NUM_JOINTS, 4)
+    q = q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True) + 1e-12)
+    hip = q[jnp.array(_HIPS)]
+    w, y = hip[:, 0], hip[:, 2]
+    half_twist = jnp.abs(y) / jnp.sqrt(w * w + y * y + 1e-12)
+    twist = jax.nn.relu(half_twist - jnp.sin(jnp.radians(HIP_TWIST_MAX_DEG) / 2))
+    knee = q[jnp.array(_KNEES)]
+    w, x, y, z = knee[:, 0], knee[:, 1], knee[:, 2], knee[:, 3]
+    d_x = -2.0 * (x * y - w * z)  # R @ (0, -1, 0): minus R's second column
+    d_z = -2.0 * (y * z + w * x)
+    forward = jax.nn.relu(d_z - jnp.sin(jnp.radians(KNEE_HYPER_MAX_DEG)))
+    side = jax.nn.relu(jnp.abs(d_x) - jnp.sin(jnp.radians(KNEE_SIDE_MAX_DEG)))
+    return jnp.concatenate([twist, forward, side])

@@ -173,3 +173,69 @@ def test_shape_estimation_recovers_a_different_person():
 def test_shape_estimation_rejects_bad_shapes():
     with pytest.raises(ValueError, match="frame, 18, 3"):
         estimate_shape(np.zeros((4, 17, 3)), np.zeros((4, 17), bool))
+
+
+def _about_x(deg: float) -> np.ndarray:
+    a = np.radians(deg) / 2
+    return np.array([np.cos(a), np.sin(a), 0.0, 0.0])
+
+
+def _about_y(deg: float) -> np.ndarray:  # a thigh's twist about its own axis
+    a = np.radians(deg) / 2
+    return np.array([np.cos(a), 0.0, np.sin(a), 0.0])
+
+
+def _with_joint(params, slot: int, quat) -> jnp.ndarray:
+    p = np.asarray(params, np.float64).copy()
+    p[3 + 4 * slot : 7 + 4 * slot] = quat
+    return jnp.asarray(p, jnp.float32)
+
+
+def test_leg_limits_zero_inside_the_range_and_pinned_to_the_model():
+    """The limits read the model's own convention: a knee bent so that the ankle goes back
+    (the body's -z) costs nothing, bent the other way it does; a hip's twist about the thigh
+    costs past 45 degrees."""
+    from posetrack._residuals import leg_limit_residuals
+
+    shape = B.BodyShape.default()
+    rest = np.zeros(43)
+    rest[3::4] = 1.0  # every quaternion the identity: the body frame is the camera's
+    ankle = np.asarray(B.keypoints(shape, jnp.asarray(rest, jnp.float32)))[13]
+    back = _with_joint(rest, 9, _about_x(60.0))
+    fore = _with_joint(rest, 9, _about_x(-30.0))
+    assert np.asarray(B.keypoints(shape, back))[13, 2] < ankle[2] - 0.3  # goes back
+    assert np.asarray(B.keypoints(shape, fore))[13, 2] > ankle[2] + 0.15  # goes forward
+    np.testing.assert_array_equal(np.asarray(leg_limit_residuals(back)), 0.0)
+    r = np.asarray(leg_limit_residuals(fore))
+    assert r[3] > 0.3 and np.delete(r, 3).max() == 0.0  # the left knee's forward term only
+    np.testing.assert_array_equal(
+        np.asarray(leg_limit_residuals(_with_joint(rest, 6, _about_y(30)))), 0
+    )
+    assert np.asarray(leg_limit_residuals(_with_joint(rest, 6, _about_y(-90))))[0] > 0.2
+    side = np.array([np.cos(np.radians(20)), 0, 0, np.sin(np.radians(20))])  # 40 deg sideways
+    assert np.asarray(leg_limit_residuals(_with_joint(rest, 7, side)))[4] > 0.3
+
+
+def test_leg_limits_choose_the_backward_knee_an_ankle_seen_in_2d_allows(fit_jit):
+    """An ankle seen only in 2D fits a shank folded toward the camera as well as the true one
+    folded away (the depth ambiguity along its ray). From a start folded 20 degrees forward
+    the paper's model folds on forward; with the limits the fit bends the knee back through
+    straight, the way knees bend."""
+    shape = B.BodyShape.default()
+    true = _with_joint(B.facing_camera_params(2.6), 9, _about_x(60.0))
+    # Put the ankle on the optical axis: the forward fold's ankle then projects to the same
+    # pixel exactly (it differs from the true one in depth only).
+    shift = np.zeros(43, np.float32)
+    shift[:2] = -np.asarray(B.keypoints(shape, true))[13, :2]
+    true = true + shift
+    start = _with_joint(B.facing_camera_params(2.6), 9, _about_x(-20.0)) + shift
+    lm = _landmarks(shape, true, depth_missing=(13,))
+    all_ = jnp.ones(18, bool)
+    truth = np.asarray(B.keypoints(shape, true))[13]
+    errs = {}
+    for w in (0.0, 1.0):
+        settings = FitSettings(max_steps=30, residuals=ResidualSettings(loss="l2", leg_limits=w))
+        res = fit_jit(start, shape, lm, INTR, use3d=all_, use2d=all_, settings=settings)
+        errs[w] = np.linalg.norm(np.asarray(B.keypoints(shape, res.params))[13] - truth)
+    assert errs[0.0] > 0.2, f"without limits the ankle should fold toward the camera: {errs}"
+    assert errs[1.0] < 0.03, f"with limits the ankle should be found: {errs}"
