@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._body import NUM_JOINTS, BodyShape, keypoints
+from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, keypoints
 from ._camera import Intrinsics, project
 from ._observe import Landmarks
 
@@ -125,7 +125,8 @@ def regulariser_residuals(
 
 
 #: Quaternion slots (index into the 10 frames of ``params[3:]``) of the hips and knees.
-_HIPS, _KNEES = (6, 8), (7, 9)
+_HIPS = tuple(JOINT_NAMES.index(f"{side}_hip") for side in ("right", "left"))
+_KNEES = tuple(JOINT_NAMES.index(f"{side}_knee") for side in ("right", "left"))
 #: Half-range of a hip's rotation about the thigh's own axis (internal / external rotation).
 HIP_TWIST_MAX_DEG = 45.0
 #: How far the shank may bend forward of the thigh's line (hyperextension) and sideways. No
@@ -142,7 +143,7 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     The model's knees are full quaternions, so a shank may bend forward of the thigh as
     easily as backward: where an ankle's keypoint is missing or only 2D, the fit can fold the
     shank toward the camera along the keypoint's ray (measured on wide tuning clips: knees bent
-    15-77 degrees the wrong way in up to 30 % of the frames, the truth never more than a few).
+    15-77 degrees the wrong way in up to 30 % of the frames, the truth in at most 4 %).
     A knee bends backward about the thigh's left axis only; the hip's rotation about the
     thigh's own axis is what points that hinge, and it is limited too (else a half turn of the
     thigh would make any forward fold a backward one). Per leg:
