@@ -40,6 +40,7 @@ from jaxtyping import Array, Bool, Float
 from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, keypoints
 from ._camera import Intrinsics, project
 from ._observe import Landmarks
+from ._rotation import quat_normalize, quat_to_matrix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,16 +157,13 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
 
     The knee's own twist moves no keypoint or surface and stays free.
     """
-    q = params[3:].reshape(NUM_JOINTS, 4)
-    q = q / jnp.sqrt(jnp.sum(q * q, axis=-1, keepdims=True) + 1e-12)
+    q = quat_normalize(params[3:].reshape(NUM_JOINTS, 4))
     hip = q[jnp.array(_HIPS)]
     w, y = hip[:, 0], hip[:, 2]
     half_twist = jnp.abs(y) / jnp.sqrt(w * w + y * y + 1e-12)
     twist = jax.nn.relu(half_twist - jnp.sin(jnp.radians(HIP_TWIST_MAX_DEG) / 2))
-    knee = q[jnp.array(_KNEES)]
-    w, x, y, z = knee[:, 0], knee[:, 1], knee[:, 2], knee[:, 3]
-    d_x = -2.0 * (x * y - w * z)  # R @ (0, -1, 0): minus R's second column
-    d_z = -2.0 * (y * z + w * x)
+    d = -quat_to_matrix(q[jnp.array(_KNEES)])[:, :, 1]  # R @ (0, -1, 0): the shank's direction
+    d_x, d_z = d[:, 0], d[:, 2]
     forward = jax.nn.relu(d_z - jnp.sin(jnp.radians(KNEE_HYPER_MAX_DEG)))
     side = jax.nn.relu(jnp.abs(d_x) - jnp.sin(jnp.radians(KNEE_SIDE_MAX_DEG)))
     return jnp.concatenate([twist, forward, side])

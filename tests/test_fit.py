@@ -10,6 +10,7 @@ import pytest
 
 from posetrack import Intrinsics, project
 from posetrack import _body as B
+from posetrack import _so3 as S
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose
 from posetrack._init import estimate_shape, initial_pose
 from posetrack._observe import Landmarks
@@ -176,13 +177,11 @@ def test_shape_estimation_rejects_bad_shapes():
 
 
 def _about_x(deg: float) -> np.ndarray:
-    a = np.radians(deg) / 2
-    return np.array([np.cos(a), np.sin(a), 0.0, 0.0])
+    return S.matrix_to_quat(S.rx(np.radians(deg)))
 
 
 def _about_y(deg: float) -> np.ndarray:  # a thigh's twist about its own axis
-    a = np.radians(deg) / 2
-    return np.array([np.cos(a), 0.0, np.sin(a), 0.0])
+    return S.matrix_to_quat(S.ry(np.radians(deg)))
 
 
 def _with_joint(params, slot: int, quat) -> jnp.ndarray:
@@ -212,7 +211,7 @@ def test_leg_limits_zero_inside_the_range_and_pinned_to_the_model():
         np.asarray(leg_limit_residuals(_with_joint(rest, 6, _about_y(30)))), 0
     )
     assert np.asarray(leg_limit_residuals(_with_joint(rest, 6, _about_y(-90))))[0] > 0.2
-    side = np.array([np.cos(np.radians(20)), 0, 0, np.sin(np.radians(20))])  # 40 deg sideways
+    side = S.matrix_to_quat(S.rz(np.radians(40.0)))  # 40 degrees sideways
     assert np.asarray(leg_limit_residuals(_with_joint(rest, 7, side)))[4] > 0.3
 
 
