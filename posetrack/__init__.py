@@ -90,6 +90,7 @@ from ._step import tracker_step as tracker_step
 from ._tracker import LOST as LOST
 from ._tracker import MODES as MODES
 from ._tracker import ONLINE_LAG as ONLINE_LAG
+from ._tracker import RUN_CHUNK as RUN_CHUNK
 from ._tracker import NO_OBSERVATION as NO_OBSERVATION
 from ._tracker import JOINT_STATES as JOINT_STATES
 from ._tracker import STATUS_NAMES as STATUS_NAMES
@@ -130,7 +131,7 @@ __all__ = [
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
     # many recordings at once
-    "StepBatcher", "track_many",
+    "RUN_CHUNK", "StepBatcher", "track_many",
     # start-up: compiled programs kept on disk
     "enable_cache",
     # the motion model

@@ -31,6 +31,7 @@ from ._associate import (
     other_people_mask,
 )
 from ._camera import Intrinsics
+from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._fit import FitSettings, fit_pose
@@ -92,6 +93,11 @@ MODES = ("offline", "online", "per-frame")
 #: occluded clips by 0.7 mm; benchmarks/README.md). ``lag=0`` publishes each frame's pose at
 #: once (shakier).
 ONLINE_LAG = 3
+
+#: Frames per compiled call in :meth:`Tracker.run` (offline and per-frame modes): the steps of
+#: up to this many frames run as one ``lax.scan`` with the track-loss logic inside
+#: (:mod:`posetrack._chunk`), the same poses as one call per frame, bit for bit.
+RUN_CHUNK = 16
 
 #: ``progress(done, total, postfix)``: called after each frame by :meth:`Tracker.run`.
 ProgressCallback = Callable[[int, int, str], None]
@@ -358,6 +364,28 @@ class _RunOutputs:
             getattr(self, name)[start : start + len(v)] = v
 
 
+@dataclasses.dataclass
+class _Prepared:
+    """One frame of a chunk as the host prepared it (:meth:`Tracker._run_chunk_into`)."""
+
+    t: int
+    person_index: int
+    """The followed detection (-1: not found; no step)."""
+    cands: Candidates
+    depth: np.ndarray
+    """Depth as fitted (metres, other people removed)."""
+    kp: np.ndarray
+    conf: np.ndarray
+    lost_only: bool
+    """Without a step: only other people in view (the frame counts as lost)."""
+    person: int
+    """:attr:`Tracker.person` after the frame."""
+    exchanged: np.ndarray
+    host: tuple
+    """The host's state after preparing the frame: (follower reference, frames since it was
+    updated, labeller, frames seen); restored if the track is dropped here."""
+
+
 def _frame_delta(est: FrameEstimate | None, status: int) -> float:
     """The Delta of a frame's pose (NaN where the frame has none), as the arbitration sums."""
     return float(est.delta) if est is not None and status != NO_OBSERVATION else float("nan")
@@ -469,6 +497,13 @@ class Tracker:
     exchanged, the next ``lag + 1`` frames are tracked both ways and the depth decides before
     any of them is published (:meth:`update`). :attr:`TrackResult.exchanged` says where
     labels were exchanged.
+
+    **Frames in chunks.** Offline and per-frame, :meth:`run` runs the steps of ``chunk``
+    frames (default :data:`RUN_CHUNK`, 16) as one compiled call, the track-loss decisions
+    inside it, and prepares the next chunk on the host while one computes; the poses are
+    those of one call per frame (``chunk=1``, what :meth:`update` does), bit for bit. The
+    first pose of :meth:`run` then comes after the first chunk. Online, :meth:`run` goes
+    frame by frame (the motion model and the left/right judgement run between frames).
     """
 
     def __init__(
@@ -487,6 +522,7 @@ class Tracker:
         fps: float = 30.0,
         sides: SideSettings | str | None = "auto",
         refine: ShapeFitSettings | str | None = "auto",
+        chunk: int = RUN_CHUNK,
     ):
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
@@ -499,6 +535,11 @@ class Tracker:
                 f"Tracker: lag {lag} must be smaller than motion.online_window "
                 f"({motion.online_window} frames)"
             )
+        if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+            raise ValueError(f"Tracker: chunk must be an int >= 1 (frames per call), got {chunk!r}")
+        self.chunk = int(chunk)
+        """Frames per compiled call in offline and per-frame :meth:`run` (1: one call per
+        frame, as :meth:`update`); see :data:`RUN_CHUNK`."""
         if not (np.isfinite(fps) and fps > 0):
             raise ValueError(f"Tracker: fps must be positive, got {fps!r}")
         # The lag is the online mode's alone: offline and per-frame poses wait for nothing.
@@ -664,13 +705,13 @@ class Tracker:
 
     # -- set-up ------------------------------------------------------------------------------
 
-    def _start_preparing(self) -> None:
+    def _start_preparing(self, *, update: bool = True) -> None:
         """Once per tracker: start building its programs in the background."""
         if not self._prepare_started:
             self._prepare_started = True
-            self.prepare(background=True)
+            self.prepare(background=True, update=update)
 
-    def prepare(self, *, background: bool = False) -> None:
+    def prepare(self, *, background: bool = False, update: bool | None = None) -> None:
         """Build the compiled programs this tracker needs for its configuration, image size and
         mode now, instead of at the first frame that needs each.
 
@@ -680,7 +721,13 @@ class Tracker:
         the track initialised. With the cache on
         (:func:`posetrack.enable_cache`, as the command line does), a later process reads the
         programs from disk instead of tracing and compiling them (``posetrack warmup``).
+
+        ``update``: build the per-frame step of :meth:`update` (a live camera) rather than the
+        chunked one of :meth:`run` (:attr:`chunk`); by default only in online mode, whose
+        :meth:`run` steps frame by frame too.
         """
+        if update is None:
+            update = self.mode == "online"
         if not isinstance(step, Program):  # replaced (tests count its traces): compile on use
             return
         f32 = partial(jax.ShapeDtypeStruct, dtype=_DTYPE)
@@ -725,16 +772,25 @@ class Tracker:
             self._batched[0].prepare(step_args)
             prepare_in_background([*jobs, *later])
             return
+        main = step
+        if not update and self._chunked:
+            C = self.chunk
+            main = step_chunk
+            step_args = (
+                self.config, shape, intr, f32((4,)), state, jax.ShapeDtypeStruct((), jnp.int32),
+                f32((2,)), jax.ShapeDtypeStruct((C,), bool), jax.ShapeDtypeStruct((C,), bool),
+                f32((C, *intr.shape)), f32((C, 18, 2)), f32((C, 18)),
+            )  # fmt: skip
         if not background:
-            prepare_now([*jobs, (step, step_args), *later])
+            prepare_now([*jobs, (main, step_args), *later])
             return
         # The step (the big program), then the offline motion model and the body-shape
         # refinement (the first frames do not need them) in one thread. Tracing holds the
         # interpreter, so the small programs the first frame needs (set-up; online, the
         # online model) start once the step is traced; their compilation then runs beside
         # the step's.
-        prepare_in_background([(step, step_args), *later])
-        step.wait_traced(*step_args)
+        prepare_in_background([(main, step_args), *later])
+        main.wait_traced(*step_args)
         prepare_in_background(jobs)
 
     def _lift(self, depth_m, kp, conf) -> Landmarks:
@@ -1155,7 +1211,7 @@ class Tracker:
             )
         if T == 0:
             raise ValueError("run: the sequence has no frames")
-        self._start_preparing()
+        self._start_preparing(update=self.mode == "online")
         if self.shape is None:
             n = min(self.config.shape_frames, T)
             t0 = time.perf_counter()
@@ -1177,15 +1233,15 @@ class Tracker:
             self.sides_s = time.perf_counter() - t0
             if self.sides.arbitrate:
                 spans = dict(arbitration_spans(self._two_sided[1], self.sides.arbitrate_after))
-        frame = partial(self._run_frame_into, out, kept, n_keep, depths, keypoints2d, confidence)
+        frames = partial(self._run_frames_into, out, kept, n_keep, depths, keypoints2d, confidence)
         try:
             t = 0
-            while t < T:
-                if t in spans:
-                    t = self._arbitrate_span(t, spans[t], out, kept, frame, progress)
+            for start in sorted(spans):
+                if start < t:  # inside a stretch already tracked
                     continue
-                frame(progress, t)
-                t += 1
+                frames(progress, t, start)
+                t = self._arbitrate_span(start, spans[start], out, kept, frames, progress)
+            frames(progress, t, T)
         finally:
             self._two_sided, self._run_frame, self._as_detected = None, None, False
         kp3, params, delta, status, conf_out = out.kp3, out.params, out.delta, out.status, out.conf
@@ -1252,6 +1308,168 @@ class Tracker:
             lag=self.lag,
         )
 
+    @property
+    def _chunked(self) -> bool:
+        """Whether :meth:`run` runs its steps in chunks (offline and per-frame modes; not
+        inside :func:`track_many`, whose batcher steps many trackers at once)."""
+        return self.chunk > 1 and self.mode != "online" and self._batched is None
+
+    def _run_frames_into(
+        self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
+        progress, start: int, stop: int,
+    ) -> None:
+        """:meth:`run`'s work for frames ``[start, stop)``: in chunks of :attr:`chunk` steps
+        (:meth:`_run_chunks_into`) or one :meth:`update` per frame."""
+        if self._chunked:
+            self._run_chunks_into(
+                out, kept, n_keep, depths, keypoints2d, confidence, progress, start, stop
+            )  # fmt: skip
+            return
+        for t in range(start, stop):
+            self._run_frame_into(out, kept, n_keep, depths, keypoints2d, confidence, progress, t)
+
+    def _run_chunks_into(
+        self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
+        progress, t: int, stop: int,
+    ) -> None:
+        """:meth:`run`'s frames ``[t, stop)`` with up to :attr:`chunk` steps per call
+        (:mod:`posetrack._chunk`). The host prepares each frame as :meth:`update` does (the
+        followed person, its labelling: none of it depends on a step while the track lives),
+        the scan runs the steps and the track-loss logic, the host records the rows.
+
+        Pipelined: while one chunk computes, the host prepares the next and queues it behind
+        (its state and lost count are the first's outputs, still on the device), then reads
+        the first's results. If the first chunk drops the track, the next one's preparation
+        is undone (the host's state restored to the frame of the drop) and its results are
+        never read: the frames after the drop are prepared again, from a new track."""
+        pending = None  # (prepared frames, the call's outputs, seconds at dispatch)
+        self._chunk_read = 0.0  # when the last chunk's results were read
+        while True:
+            frames: list[_Prepared] = []
+            if t < stop:
+                frames, t = self._prepare_chunk(
+                    out, kept, n_keep, depths, keypoints2d, confidence, progress, t, stop
+                )  # fmt: skip
+            call = self._dispatch_chunk(frames) if frames else None
+            if pending is not None:
+                resume = self._finish_chunk(
+                    out, kept, n_keep, len(depths), confidence, progress, *pending
+                )  # fmt: skip
+                if resume is not None:  # dropped: the frames after the drop start afresh
+                    pending, t = None, resume
+                    continue
+            if call is None and t >= stop:
+                self._lost_run = int(self._lost_run)  # one read, at the end
+                return
+            pending = None if call is None else (frames, *call)
+
+    def _prepare_chunk(
+        self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
+        progress, t: int, stop: int,
+    ) -> tuple[list[_Prepared], int]:
+        """The host's part of :meth:`update` before the step, for the frames from ``t`` until
+        :attr:`chunk` of them have a live track (or ``stop``). Without a track (never while a
+        chunk is queued: it leaves its state) a frame either (re-)initialises it or is
+        recorded at once, without a step. Returns the prepared frames and the next frame."""
+        frames: list[_Prepared] = []
+        while t < stop and len(frames) < self.chunk:
+            self._run_frame = t
+            self._frames_seen += 1
+            depth_m = check_depth(self.intrinsics, depths[t], self.depth_scale, f"frame {t}")
+            kp_all, conf_all = check_people(keypoints2d[t], confidence[t], f"frame {t}")
+            p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
+            others = p < 0 and self._follower.reference is not None
+            lost_only = others and self._follower.usable(cands)
+            if self._state is None and not (p >= 0 and self._initialize(depth_fit, kp, conf)):
+                # No track, and this frame starts none: it ends here, without a step.
+                self._record_frame(
+                    out, kept, n_keep, len(depths), confidence, progress, t, None,
+                    LOST if lost_only else NO_OBSERVATION, self.exchanged, self._person, None,
+                    held=(),
+                )  # fmt: skip
+                t += 1
+                continue
+            frames.append(_Prepared(
+                t, p, cands, depth_fit, kp, conf, lost_only, self._person, self.exchanged.copy(),
+                (self._follower.reference, self._follower.since, copy.deepcopy(self._labeller),
+                 self._frames_seen),
+            ))  # fmt: skip
+            t += 1
+        return frames, t
+
+    def _dispatch_chunk(self, frames: list[_Prepared]) -> tuple:
+        """Queue the prepared frames' steps as one call; the track's state and lost count
+        become the call's (device) outputs. Returns ``(outputs, seconds at dispatch)``."""
+        C, (H, W) = self.chunk, frames[0].depth.shape
+        depth = np.zeros((C, H, W), np.float32)
+        kp2 = np.zeros((C, 18, 2), np.float32)
+        conf2 = np.zeros((C, 18), np.float32)
+        run, lost_only = np.zeros(C, bool), np.zeros(C, bool)
+        for i, f in enumerate(frames):
+            run[i], lost_only[i] = f.person_index >= 0, f.lost_only
+            if run[i]:
+                depth[i], kp2[i], conf2[i] = f.depth, f.kp, f.conf
+        t0 = time.perf_counter()
+        lost_run = self._lost_run
+        (self._state, self._lost_run), res = step_chunk(
+            self.config, self.shape, self.intrinsics, self._floor, self._state,
+            np.int32(lost_run) if isinstance(lost_run, int) else lost_run,
+            status_limits(self.config), run, lost_only, depth, kp2, conf2,
+        )  # fmt: skip
+        return res, t0
+
+    def _finish_chunk(
+        self, out: _RunOutputs, kept: dict, n_keep: int, T: int, confidence, progress,
+        frames: list[_Prepared], res, t0: float,
+    ) -> int | None:
+        """Read a dispatched chunk's results (one transfer) and record its frames. Returns
+        the frame after a drop (the host's state restored to that frame's), else None."""
+        res = jax.device_get(res)
+        # Its compute began at its dispatch or when the chunk before it was done (queued).
+        now = time.perf_counter()
+        dt, self._chunk_read = now - max(t0, self._chunk_read), now
+        steps = sum(f.person_index >= 0 for f in frames)
+        if self._step_calls == 0:  # the first call compiles
+            self.compile_s += dt
+        elif steps:
+            self._step_times.extend([dt / steps] * steps)
+        self._step_calls += 1
+        for i, f in enumerate(frames):
+            st, dropped = int(res.status[i]), bool(res.dropped[i])
+            est = None
+            if f.person_index >= 0:
+                est = jax.tree.map(lambda a: a[i, ...], res.estimate)
+                self._depth_fit = f.depth
+                if st == TRACKED:
+                    self._follower.tracked(f.cands, f.person_index)
+            self._record_frame(
+                out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
+                f.person, f.depth, held=() if dropped else res.held[i],
+            )  # fmt: skip
+            if dropped:
+                # As after this frame's update: the later frames' preparation undone.
+                (self._follower.reference, self._follower.since, self._labeller,
+                 self._frames_seen) = f.host  # fmt: skip
+                self._person, self.exchanged, self._run_frame = f.person, f.exchanged.copy(), f.t
+                self._drop_track()
+                return f.t + 1
+        return None
+
+    def _record_frame(
+        self, out: _RunOutputs, kept: dict, n_keep: int, T: int, confidence, progress, t: int,
+        est, st: int, exchanged, person: int, depth_fit, *, held,
+    ) -> None:
+        """A chunked frame's row of ``out`` (as :meth:`_run_frame_into` records an update's),
+        its progress report, and the body-shape refinement's candidate frames."""
+        out.num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
+        self._put_row(out, t, est, st, exchanged, person, pose=True, held=held)
+        if progress is not None:
+            progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
+        if n_keep and st == TRACKED:
+            _keep_best_observed(
+                kept, t * n_keep // T, int(out.has_d[t].sum()), lambda: (t, depth_fit)
+            )
+
     def _run_frame_into(
         self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
         progress, t: int,
@@ -1283,21 +1501,26 @@ class Tracker:
             )
 
     def _put_row(
-        self, out: _RunOutputs, t: int, est, st: int, exchanged, person: int, *, pose: bool
+        self, out: _RunOutputs, t: int, est, st: int, exchanged, person: int, *, pose: bool,
+        held=None,
     ) -> None:
         """Frame ``t``'s row of ``out`` from its update's ``(est, st)``; its pose too where
-        ``pose`` (else the row's pose is left as it is)."""
+        ``pose`` (else the row's pose is left as it is). ``held``: the live track's pose after
+        the frame (the held one where nothing was observed), ``()`` for no live track; by
+        default the tracker's current state's."""
+        if held is None:
+            held = () if self._state is None else self._state.best
         out.status[t] = st
         out.person[t] = person
         out.exchanged[t] = exchanged if self.sides is not None and person >= 0 else False
         out.delta[t], out.conf[t] = np.nan, 0.0
         if est is None:
             out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = 0, False, False, 0, 0
-            if pose and self._state is not None:
+            if pose and not isinstance(held, tuple):
                 # The track lives but its person was not seen (nobody, or only other
                 # people): hold the last pose, as for a frame without observation.
-                out.params[t] = np.asarray(self._state.best)
-                out.kp3[t] = np.asarray(body.keypoints(self.shape, self._state.best))
+                out.params[t] = np.asarray(held)
+                out.kp3[t] = np.asarray(body.keypoints(self.shape, held))
             return
         lm = est.landmarks
         out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = (
@@ -1308,10 +1531,9 @@ class Tracker:
             np.asarray(lm.confidence),
         )
         if st == NO_OBSERVATION:
-            prev = self._state.best if self._state is not None else None
-            if pose and prev is not None:
-                out.params[t] = np.asarray(prev)
-                out.kp3[t] = np.asarray(body.keypoints(self.shape, prev))
+            if pose and not isinstance(held, tuple):
+                out.params[t] = np.asarray(held)
+                out.kp3[t] = np.asarray(body.keypoints(self.shape, held))
             return
         if pose:
             out.params[t] = np.asarray(est.params)
@@ -1320,15 +1542,14 @@ class Tracker:
         out.conf[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
 
     def _arbitrate_span(
-        self, start: int, stop: int, out: _RunOutputs, kept: dict, frame, progress
+        self, start: int, stop: int, out: _RunOutputs, kept: dict, frames, progress
     ) -> int:
         """Track frames ``[start, stop)`` twice from the same state, with the two-sided
         labelling and with the labels as detected, and keep the reading whose poses score the
         lower Delta (:func:`prefer_exchanged`). Returns ``stop``."""
         before = self._snapshot()
         saved, kept_before = out.copy_span(start, stop), dict(kept)
-        for u in range(start, stop):
-            frame(None, u)
+        frames(None, start, stop)
         delta_ex = out.delta[start:stop].copy()
         after_ex, span_ex, kept_ex = self._snapshot(), out.copy_span(start, stop), dict(kept)
         self._restore(before)
@@ -1336,8 +1557,7 @@ class Tracker:
         kept.clear()
         kept.update(kept_before)
         self._as_detected = True
-        for u in range(start, stop):
-            frame(progress, u)
+        frames(progress, start, stop)
         self._as_detected = False
         delta_as = out.delta[start:stop]
         chosen = prefer_exchanged(delta_as, delta_ex, self.sides.arbitrate_margin)
@@ -1485,6 +1705,7 @@ def track(
     fps: float = 30.0,
     sides: SideSettings | str | None = "auto",
     refine: ShapeFitSettings | str | None = "auto",
+    chunk: int = RUN_CHUNK,
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
@@ -1493,10 +1714,11 @@ def track(
     frames after it (default :data:`ONLINE_LAG`, 3); ``fps`` scales the motion prior; ``sides``
     undoes the detector's left/right swaps (:class:`SideSettings`; ``"auto"``: offline, read
     from both directions and arbitrated by the depth; online, read forwards and each exchange
-    judged by the depth before it is published; ``None``: off)."""
+    judged by the depth before it is published; ``None``: off); ``chunk``: frames per compiled
+    call (:data:`RUN_CHUNK`; 1: one call per frame, the same poses)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
-        lag=lag, motion=motion, fps=fps, sides=sides, refine=refine,
+        lag=lag, motion=motion, fps=fps, sides=sides, refine=refine, chunk=chunk,
     ).run(depths, keypoints2d, confidence, progress=progress)  # fmt: skip
 
 

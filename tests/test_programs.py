@@ -197,13 +197,13 @@ def test_tracker_poses_are_the_same_with_and_without_the_store(clip, tmp_path):
             mode="per-frame",
         ).keypoints3d  # fmt: skip
 
-    from posetrack import _tracker
+    from posetrack import _chunk, _tracker
 
     saved = (_programs.cache_dir(), jax.config.jax_compilation_cache_dir)
     try:
         pt.enable_cache(tmp_path / "c")
         first = run()  # traces, stores
-        _tracker.step._ready.clear()  # forget what is in memory: read back from the store
+        _chunk.step_chunk._ready.clear()  # forget what is in memory: read back from the store
         _tracker.lift._ready.clear()
         _tracker.initial_fit._ready.clear()
         second = run()
