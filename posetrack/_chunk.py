@@ -31,10 +31,7 @@ from jaxtyping import Array, Bool, Float, Int
 
 from ._config import TrackerConfig
 from ._programs import program
-from ._step import FrameEstimate, TrackState, tracker_step
-
-#: Frame status codes, as :mod:`posetrack._tracker` defines them.
-TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
+from ._step import LOST, NO_OBSERVATION, TRACKED, FrameEstimate, TrackState, tracker_step
 
 
 class ChunkFrames(eqx.Module):
@@ -142,12 +139,5 @@ def track_chunk(
 _jitted_step = jax.jit(tracker_step)
 
 
-@program("step_chunk")
-def step_chunk(
-    config, shape, intrinsics, floor, state, lost_run, limits, run, lost_only, depth, kp2d, conf
-):
-    """:func:`track_chunk`, compiled (once per configuration, image size and chunk length)."""
-    return track_chunk(
-        config, shape, intrinsics, floor, state, lost_run, limits, run, lost_only, depth, kp2d,
-        conf,
-    )  # fmt: skip
+#: :func:`track_chunk`, compiled (once per configuration, image size and chunk length).
+step_chunk = program("step_chunk")(track_chunk)

@@ -31,6 +31,11 @@ from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
 from ._visibility import self_occluded
 
+#: Frame status codes: what a frame's step (and the host's track-loss logic around it) made of
+#: the frame. :mod:`posetrack._tracker` (host) and :mod:`posetrack._chunk` (inside a scan) share
+#: them; the file outputs write them as :data:`posetrack.STATUS_NAMES`.
+TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
+
 
 class TrackState(eqx.Module):
     """What the tracker carries from one frame to the next."""

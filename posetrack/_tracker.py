@@ -56,7 +56,7 @@ from ._smooth import (
     smooth_sequence,
     smooth_window_program,
 )
-from ._step import FrameEstimate, TrackState, tracker_step
+from ._step import LOST, NO_OBSERVATION, TRACKED, FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
 
@@ -76,8 +76,7 @@ _NO_POSE = body.facing_camera_params_np(2.5)
 #: Fewer tracked frames than this and ``refine`` is skipped (the shape stays as estimated).
 _MIN_REFINE_FRAMES = 3
 
-#: Frame status codes (also the strings written to files).
-TRACKED, LOST, NO_OBSERVATION = 0, 1, 2
+#: The frame status codes' names (also the strings written to files).
 STATUS_NAMES = ("tracked", "lost", "no_observation")
 #: Names of :attr:`TrackResult.joint_state`'s values (also written to ``poses.npz``).
 JOINT_STATES = JOINT_STATE_NAMES
@@ -366,7 +365,7 @@ class _RunOutputs:
 
 @dataclasses.dataclass
 class _Prepared:
-    """One frame of a chunk as the host prepared it (:meth:`Tracker._run_chunk_into`)."""
+    """One frame of a chunk as the host prepared it (:meth:`Tracker._prepare_chunk`)."""
 
     t: int
     person_index: int
@@ -881,6 +880,11 @@ class Tracker:
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
 
+    def _others_only(self, p: int, cands: Candidates) -> bool:
+        """The followed person (chosen before) was not found but others are usable in view:
+        the frame is lost without a step (else, with ``p < 0``, nothing was observed)."""
+        return p < 0 and self._follower.reference is not None and self._follower.usable(cands)
+
     def _offline_exchanged(self, p: int, forward: np.ndarray) -> np.ndarray:
         """In offline :meth:`run`, the labelling of detection ``p`` in the frame being tracked:
         the pre-pass's where it labelled that detection (unless a stretch is being tracked as
@@ -1140,7 +1144,7 @@ class Tracker:
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
         if p < 0:
-            if self._follower.reference is None or not self._follower.usable(cands):
+            if not self._others_only(p, cands):
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
             # Only other people in view: the followed person is lost this frame.
             if self._state is not None:
@@ -1378,14 +1382,13 @@ class Tracker:
             depth_m = check_depth(self.intrinsics, depths[t], self.depth_scale, f"frame {t}")
             kp_all, conf_all = check_people(keypoints2d[t], confidence[t], f"frame {t}")
             p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
-            others = p < 0 and self._follower.reference is not None
-            lost_only = others and self._follower.usable(cands)
+            lost_only = self._others_only(p, cands)
             if self._state is None and not (p >= 0 and self._initialize(depth_fit, kp, conf)):
                 # No track, and this frame starts none: it ends here, without a step.
                 self._record_frame(
                     out, kept, n_keep, len(depths), confidence, progress, t, None,
                     LOST if lost_only else NO_OBSERVATION, self.exchanged, self._person, None,
-                    held=(),
+                    held=None,
                 )  # fmt: skip
                 t += 1
                 continue
@@ -1444,7 +1447,7 @@ class Tracker:
                     self._follower.tracked(f.cands, f.person_index)
             self._record_frame(
                 out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
-                f.person, f.depth, held=() if dropped else res.held[i],
+                f.person, f.depth, held=None if dropped else res.held[i],
             )  # fmt: skip
             if dropped:
                 # As after this frame's update: the later frames' preparation undone.
@@ -1459,8 +1462,8 @@ class Tracker:
         self, out: _RunOutputs, kept: dict, n_keep: int, T: int, confidence, progress, t: int,
         est, st: int, exchanged, person: int, depth_fit, *, held,
     ) -> None:
-        """A chunked frame's row of ``out`` (as :meth:`_run_frame_into` records an update's),
-        its progress report, and the body-shape refinement's candidate frames."""
+        """Frame ``t``'s row of ``out`` (:meth:`_put_row`), its progress report, and the
+        body-shape refinement's candidate frames; chunked or after one :meth:`update`."""
         out.num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
         self._put_row(out, t, est, st, exchanged, person, pose=True, held=held)
         if progress is not None:
@@ -1482,7 +1485,7 @@ class Tracker:
         if self.mode == "online" and self.lagged is not None and self.lag > 0:
             i, p_lag, k_lag = self.lagged
             out.params[i], out.kp3[i] = p_lag, k_lag
-        out.num_people[t] = int(np.any(np.reshape(confidence[t], (-1, 18)) > 0, axis=1).sum())
+        held = None if self._state is None else self._state.best
         rows, self._judged_rows = self._judged_rows, None
         if rows:
             # An online judgement ended here: its earlier frames were recorded as the reading
@@ -1491,32 +1494,26 @@ class Tracker:
             for j, ((e, s), ex, person) in enumerate(rows[:-1]):
                 tt = t - len(rows) + 1 + j
                 if tt >= 0:
-                    self._put_row(out, tt, e, s, ex, person, pose=tt > t - self.lag)
-        self._put_row(out, t, est, st, self.exchanged, self._person, pose=True)
-        if progress is not None:
-            progress(t + 1, T, "" if est is None else f"delta {float(est.delta):.2f}")
-        if n_keep and st == TRACKED:
-            _keep_best_observed(
-                kept, t * n_keep // T, int(out.has_d[t].sum()), lambda: (t, self._depth_fit)
-            )
+                    self._put_row(out, tt, e, s, ex, person, pose=tt > t - self.lag, held=held)
+        self._record_frame(
+            out, kept, n_keep, T, confidence, progress, t, est, st, self.exchanged, self._person,
+            self._depth_fit, held=held,
+        )  # fmt: skip
 
     def _put_row(
         self, out: _RunOutputs, t: int, est, st: int, exchanged, person: int, *, pose: bool,
-        held=None,
+        held,
     ) -> None:
         """Frame ``t``'s row of ``out`` from its update's ``(est, st)``; its pose too where
         ``pose`` (else the row's pose is left as it is). ``held``: the live track's pose after
-        the frame (the held one where nothing was observed), ``()`` for no live track; by
-        default the tracker's current state's."""
-        if held is None:
-            held = () if self._state is None else self._state.best
+        the frame (the held one where nothing was observed; None: no live track)."""
         out.status[t] = st
         out.person[t] = person
         out.exchanged[t] = exchanged if self.sides is not None and person >= 0 else False
         out.delta[t], out.conf[t] = np.nan, 0.0
         if est is None:
             out.lm3[t], out.has_d[t], out.det[t], out.kp2[t], out.lm_conf[t] = 0, False, False, 0, 0
-            if pose and not isinstance(held, tuple):
+            if pose and held is not None:
                 # The track lives but its person was not seen (nobody, or only other
                 # people): hold the last pose, as for a frame without observation.
                 out.params[t] = np.asarray(held)
@@ -1531,7 +1528,7 @@ class Tracker:
             np.asarray(lm.confidence),
         )
         if st == NO_OBSERVATION:
-            if pose and not isinstance(held, tuple):
+            if pose and held is not None:
                 out.params[t] = np.asarray(held)
                 out.kp3[t] = np.asarray(body.keypoints(self.shape, held))
             return
