@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from ._body import BODY_JOINTS
 from ._camera import Intrinsics, backproject
 
 
@@ -103,5 +104,29 @@ def lift_keypoints(
         confidence=conf,
         points3d=points,
         detected=detected,
+        has_depth=has_depth,
+    )
+
+
+def confident_depth(landmarks: Landmarks, ratio: Float[Array, ""] | float) -> Landmarks:
+    """``landmarks`` with F_i cleared (and O_i zeroed) where the keypoint's confidence is below
+    ``ratio`` times the median confidence of the frame's detected body keypoints (neck to
+    ankles); the 2D detections stay (f_i). Jittable; ``ratio`` may be traced.
+
+    A detector reports keypoints it infers behind an occluder at a lower confidence than the
+    ones it sees, and the depth on such a keypoint's pixel belongs to the occluder. The median
+    makes the rule follow the detector's own confidence scale. ``ratio = 0`` returns the
+    landmarks unchanged; so does a frame with no body keypoint detected.
+    """
+    c = landmarks.confidence
+    body = jnp.zeros(c.shape, bool).at[jnp.asarray(BODY_JOINTS)].set(True) & landmarks.detected
+    median = jnp.nanmedian(jnp.where(body, c, jnp.nan))
+    median = jnp.where(jnp.isnan(median), 0.0, median)
+    has_depth = landmarks.has_depth & (c >= ratio * median)
+    return Landmarks(
+        keypoints2d=landmarks.keypoints2d,
+        confidence=landmarks.confidence,
+        points3d=jnp.where(has_depth[:, None], landmarks.points3d, 0.0),
+        detected=landmarks.detected,
         has_depth=has_depth,
     )

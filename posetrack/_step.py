@@ -25,7 +25,7 @@ from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
 from ._limbs import limb_hypotheses
-from ._observe import Landmarks
+from ._observe import Landmarks, confident_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
@@ -207,6 +207,10 @@ def tracker_step(
     """
     key, key_next = jax.random.split(state.key)
     lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence)
+    # With TrackerConfig.depth_confidence > 0 (off by default), keypoints detected far less
+    # confidently than the rest of the body (inferred behind an occluder: their depth is the
+    # occluder's) are fitted in 2D only. At 0 the landmarks are unchanged.
+    lm = confident_depth(lm, config.depth_confidence)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
         # Every other hypothesis leaves out the 3D landmarks that the previous output says

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from posetrack import Intrinsics
-from posetrack._observe import lift_keypoints
+from posetrack._observe import Landmarks, confident_depth, lift_keypoints
 
 INTR = Intrinsics.create(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=60)
 
@@ -102,3 +102,49 @@ def test_even_window_is_rejected():
     kp, conf = _kp([])
     with pytest.raises(ValueError, match="window"):
         lift_keypoints(jnp.zeros((60, 80)), jnp.asarray(kp), jnp.asarray(conf), INTR, window=4)
+
+
+def _landmarks(confidence):
+    conf = jnp.asarray(confidence, jnp.float32)
+    return Landmarks(
+        keypoints2d=jnp.full((18, 2), 10.0), confidence=conf,
+        points3d=jnp.tile(jnp.asarray([0.1, 0.2, 2.5]), (18, 1)),
+        detected=conf > 0.1, has_depth=conf > 0.1,
+    )  # fmt: skip
+
+
+def test_confident_depth_drops_depth_below_the_ratio_of_the_body_median():
+    conf = np.full(18, 0.85, np.float32)
+    conf[7] = 0.6  # 0.6 < 0.8 * 0.85 = 0.68: inferred, not seen
+    conf[6] = 0.7  # above the ratio: kept
+    conf[0] = 0.3  # the nose is not a body keypoint: its low confidence sets no median
+    conf[11] = 0.0  # not detected: stays without depth
+    lm = confident_depth(_landmarks(conf), 0.8)
+    kept = np.asarray(lm.has_depth)
+    assert not kept[7] and kept[6] and not kept[0] and not kept[11]
+    assert kept[[1, 2, 3, 4, 5, 8, 9, 10, 12, 13]].all()
+    assert np.asarray(lm.detected)[[0, 7]].all()  # the 2D detections stay
+    np.testing.assert_array_equal(np.asarray(lm.points3d[7]), 0.0)
+    np.testing.assert_allclose(np.asarray(lm.points3d[6]), [0.1, 0.2, 2.5])
+
+
+def test_confident_depth_follows_the_detectors_scale_and_is_off_at_zero():
+    conf = np.full(18, 0.85, np.float32)
+    conf[7] = 0.6
+    # A detector whose confidences run lower overall: the same ratios, the same decision.
+    assert not bool(confident_depth(_landmarks(conf * 0.5), 0.8).has_depth[7])
+    assert bool(confident_depth(_landmarks(conf), 0.0).has_depth[7])
+    # No body keypoint detected (only the face): nothing to compare with, nothing dropped.
+    face = np.zeros(18, np.float32)
+    face[[0, 14, 15]] = 0.2
+    assert np.asarray(confident_depth(_landmarks(face), 0.8).has_depth)[[0, 14, 15]].all()
+
+
+def test_depth_confidence_is_validated():
+    import posetrack as pt
+
+    assert pt.TrackerConfig().depth_confidence == 0.0  # off: the paper's lifting
+    assert pt.TrackerConfig(depth_confidence=1).depth_confidence == 1.0
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="TrackerConfig.depth_confidence"):
+            pt.TrackerConfig(depth_confidence=bad)

@@ -152,12 +152,16 @@ def test_a_detection_off_its_joint_is_not_hidden_by_what_it_landed_on(facing, oc
     hidden = np.asarray(occluded(SHAPE, p, lm, INTR, off, MARGIN, TOL))
     assert not hidden[L_WRIST]
 
-def test_the_step_leaves_hidden_landmarks_to_every_other_hypothesis(side):
-    """``TrackerConfig.occlusion_gate`` in the jitted step: the far wrist, lifted from the
-    rendered depth onto the torso, is fitted in 2D only by the odd hypotheses, while the even
-    ones draw its 3D landmark as usual (so the gate, not the temporal weight, kept it out)."""
+
+@pytest.fixture(scope="module")
+def step():
+    return jax.jit(pt.tracker_step)
+
+
+def _side_step(side, step, config, conf):
+    """One jitted step on the side view, the far wrist lifted from the rendered depth onto
+    the torso; W^h made to favour drawing its landmark."""
     p, kps, depth, far, _ = side
-    config = pt.TrackerConfig(occlusion_gate=True, score_width=80, score_height=60)
     n = config.n
     off = np.asarray(surface_offsets(SHAPE))
     previous = kps.copy()
@@ -171,10 +175,39 @@ def test_the_step_leaves_hidden_landmarks_to_every_other_hypothesis(side):
         key=jax.random.PRNGKey(0),
     )
     kp2d = jnp.asarray(_project(kps), jnp.float32)
-    conf = jnp.ones(18, jnp.float32)
     floor = jnp.asarray(NO_FLOOR, jnp.float32)
-    step = jax.jit(pt.tracker_step)
-    _, est = step(config, SHAPE, INTR, floor, state, jnp.asarray(depth), kp2d, conf)
+    _, est = step(config, SHAPE, INTR, floor, state, jnp.asarray(depth), kp2d, jnp.asarray(conf))
+    return est
+
+
+#: Static fields shared by the step tests (one compiled program for all of them).
+GATED = pt.TrackerConfig(occlusion_gate=True, score_width=80, score_height=60)
+
+
+def test_the_step_fits_an_unconfident_keypoint_in_2d_only(side, step):
+    """``TrackerConfig.depth_confidence``: the far wrist, detected at 0.5 where the rest of
+    the body is at 0.9 (a detector's guess behind the torso), loses its 3D landmark in every
+    hypothesis at ratio 0.8, and is fitted in 2D; at ratio 0 (the paper) the even hypotheses
+    draw it."""
+    _, kps, _, far, _ = side
+    conf = np.full(18, 0.9, np.float32)
+    conf[far] = 0.5
+    est = _side_step(side, step, GATED.replace(depth_confidence=0.8), conf)
+    assert not bool(est.landmarks.has_depth[far]) and bool(est.landmarks.detected[far])
+    used3d, used2d = np.asarray(est.used3d), np.asarray(est.used2d)
+    assert not used3d[:, far].any()
+    assert used2d[: GATED.n, far].sum() >= 6  # drawn as 2D (subsets may leave a few out)
+    paper = _side_step(side, step, GATED.replace(depth_confidence=0.0), conf)
+    assert bool(paper.landmarks.has_depth[far])
+    assert np.asarray(paper.used3d)[0::2, far].sum() >= 3
+
+
+def test_the_step_leaves_hidden_landmarks_to_every_other_hypothesis(side, step):
+    """``TrackerConfig.occlusion_gate`` in the jitted step: the far wrist, lifted from the
+    rendered depth onto the torso, is fitted in 2D only by the odd hypotheses, while the even
+    ones draw its 3D landmark as usual (so the gate, not the temporal weight, kept it out)."""
+    _, kps, _, far, _ = side
+    est = _side_step(side, step, GATED, np.ones(18, np.float32))
     lm = est.landmarks
     assert bool(lm.has_depth[far])  # the landmark itself is kept (the even ones may use it)
     assert float(lm.points3d[far, 2]) < kps[far, 2] - 0.15  # lifted onto the torso
