@@ -106,10 +106,12 @@ class TrackerConfig(eqx.Module):
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
     depth_confidence: float = 0.0
     """Off by default (0, the paper: every detected keypoint with valid depth is a 3D
-    landmark). Above 0, a detected keypoint's depth enters the per-frame fits (F_i) only where
-    its confidence is at least this fraction of the median confidence of the frame's detected
-    body keypoints (neck to ankles, :func:`~posetrack.confident_depth`); below it the
-    hypotheses fit its 2D detection instead. A detector reports the keypoints it infers behind
+    landmark). Above 0, a detected keypoint's depth is a 3D landmark of the per-frame step
+    (F_i: its fits and Delta's choice, and what the step reports, which track loss and the
+    smoother read) only where its confidence is at least this fraction of the median
+    confidence of the frame's detected body keypoints (neck to ankles,
+    :func:`~posetrack.confident_depth`); below it the hypotheses fit its 2D detection
+    instead. A detector reports the keypoints it infers behind
     an occluder (the far arm behind the torso in a side view, a leg behind a box) at a lower
     confidence, and the depth on such a keypoint's pixel is the occluder's surface, 20-50 cm
     too close. Relative, so it follows a detector's own confidence scale. The
