@@ -11,6 +11,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from ._body import BODY_JOINTS
@@ -119,8 +120,8 @@ def confident_depth(landmarks: Landmarks, ratio: Float[Array, ""] | float) -> La
     landmarks unchanged; so does a frame with no body keypoint detected.
     """
     c = landmarks.confidence
-    body = jnp.zeros(c.shape, bool).at[jnp.asarray(BODY_JOINTS)].set(True) & landmarks.detected
-    median = jnp.nanmedian(jnp.where(body, c, jnp.nan))
+    body = np.asarray(BODY_JOINTS)
+    median = jnp.nanmedian(jnp.where(landmarks.detected[body], c[body], jnp.nan))
     median = jnp.where(jnp.isnan(median), 0.0, median)
     has_depth = landmarks.has_depth & (c >= ratio * median)
     return Landmarks(

@@ -5,6 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import posetrack as pt
 from posetrack import Intrinsics
 from posetrack._observe import Landmarks, confident_depth, lift_keypoints
 
@@ -141,8 +142,6 @@ def test_confident_depth_follows_the_detectors_scale_and_is_off_at_zero():
 
 
 def test_depth_confidence_is_validated():
-    import posetrack as pt
-
     assert pt.TrackerConfig().depth_confidence == 0.0  # off: the paper's lifting
     assert pt.TrackerConfig(depth_confidence=1).depth_confidence == 1.0
     for bad in (-0.1, 1.5, float("nan")):
