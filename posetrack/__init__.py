@@ -60,7 +60,6 @@ from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
 from ._metrics import swapped_limb_frames as swapped_limb_frames
 from ._metrics import swapped_limbs as swapped_limbs
-from ._many import StepBatcher as StepBatcher
 from ._many import track_many as track_many
 from ._observe import Landmarks as Landmarks
 from ._observe import confident_depth as confident_depth
@@ -82,6 +81,8 @@ from ._sides import SideSettings as SideSettings
 from ._sides import arbitration_spans as arbitration_spans
 from ._sides import prefer_exchanged as prefer_exchanged
 from ._sides import two_sided_exchanged as two_sided_exchanged
+from ._batcher import ChunkBatcher as ChunkBatcher
+from ._batcher import StepBatcher as StepBatcher
 from ._limbs import LIMB_NAMES as LIMB_NAMES
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
@@ -133,7 +134,7 @@ __all__ = [
     "TRACKED", "TrackResult", "TrackState", "Tracker", "TrackerConfig", "lift_sequence",
     "track", "tracker_step",
     # many recordings at once
-    "RUN_CHUNK", "StepBatcher", "track_many",
+    "ChunkBatcher", "RUN_CHUNK", "StepBatcher", "track_many",
     # start-up: compiled programs kept on disk
     "enable_cache",
     # the motion model

@@ -30,6 +30,7 @@ from ._associate import (
     lift_candidates,
     other_people_mask,
 )
+from ._batcher import Pending, resolve
 from ._camera import Intrinsics
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
@@ -767,12 +768,8 @@ class Tracker:
                 self.refine.frames,
             ))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
-        if self._batched is not None:  # track_many: the batcher compiles the batched step
-            self._batched[0].prepare(step_args)
-            prepare_in_background([*jobs, *later])
-            return
         main = step
-        if not update and self._chunked:
+        if (not update or self._batched is not None) and self._chunked:
             C = self.chunk
             main = step_chunk
             step_args = (
@@ -780,6 +777,10 @@ class Tracker:
                 f32((2,)), jax.ShapeDtypeStruct((C,), bool), jax.ShapeDtypeStruct((C,), bool),
                 f32((C, *intr.shape)), f32((C, 18, 2)), f32((C, 18)),
             )  # fmt: skip
+        if self._batched is not None:  # track_many: the batcher compiles the batched program
+            self._batched[0].prepare(step_args)
+            prepare_in_background([*jobs, *later])
+            return
         if not background:
             prepare_now([*jobs, (main, step_args), *later])
             return
@@ -1314,9 +1315,9 @@ class Tracker:
 
     @property
     def _chunked(self) -> bool:
-        """Whether :meth:`run` runs its steps in chunks (offline and per-frame modes; not
-        inside :func:`track_many`, whose batcher steps many trackers at once)."""
-        return self.chunk > 1 and self.mode != "online" and self._batched is None
+        """Whether :meth:`run` runs its steps in chunks (offline and per-frame modes; inside
+        :func:`track_many` too, as one batched call of many trackers' chunks)."""
+        return self.chunk > 1 and self.mode != "online"
 
     def _run_frames_into(
         self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
@@ -1363,7 +1364,9 @@ class Tracker:
                     pending, t = None, resume
                     continue
             if call is None and t >= stop:
-                self._lost_run = int(self._lost_run)  # one read, at the end
+                # One read, at the end (inside track_many, the batch's share of them).
+                self._state, lost_run = resolve((self._state, self._lost_run))
+                self._lost_run = int(lost_run)
                 return
             pending = None if call is None else (frames, *call)
 
@@ -1414,12 +1417,19 @@ class Tracker:
                 depth[i], kp2[i], conf2[i] = f.depth, f.kp, f.conf
         t0 = time.perf_counter()
         lost_run = self._lost_run
-        (self._state, self._lost_run), res = step_chunk(
+        args = (
             self.config, self.shape, self.intrinsics, self._floor, self._state,
             np.int32(lost_run) if isinstance(lost_run, int) else lost_run,
             status_limits(self.config), run, lost_only, depth, kp2, conf2,
         )  # fmt: skip
-        return res, t0
+        if self._batched is None:
+            (self._state, self._lost_run), res = step_chunk(*args)
+            return res, t0
+        # track_many: the state and lost count stay the batch's (Pending) until the next
+        # chunk's batch or the end of the frames reads them.
+        share = self._batched[0].submit(self._batched[1], *args)
+        self._state, self._lost_run = share.part(lambda r: r[0][0]), share.part(lambda r: r[0][1])
+        return share.part(lambda r: r[1]), t0
 
     def _finish_chunk(
         self, out: _RunOutputs, kept: dict, n_keep: int, T: int, confidence, progress,
@@ -1427,7 +1437,7 @@ class Tracker:
     ) -> int | None:
         """Read a dispatched chunk's results (one transfer) and record its frames. Returns
         the frame after a drop (the host's state restored to that frame's), else None."""
-        res = jax.device_get(res)
+        res = res.get() if isinstance(res, Pending) else jax.device_get(res)
         # Its compute began at its dispatch or when the chunk before it was done (queued).
         now = time.perf_counter()
         dt, self._chunk_read = now - max(t0, self._chunk_read), now

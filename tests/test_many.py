@@ -53,9 +53,7 @@ def test_track_many_equals_single_runs(seqs):
     it gets alone, up to float rounding (D within 1 mm, same frame statuses)."""
     inputs = [(s.intrinsics, s.depth, s.keypoints2d, s.confidence) for s in seqs]
     done = []
-    many = pt.track_many(
-        inputs, batch=2, mode="per-frame", on_result=lambda i, r: done.append(i)
-    )
+    many = pt.track_many(inputs, batch=2, mode="per-frame", on_result=lambda i, r: done.append(i))
     assert sorted(done) == [0, 1, 2]
     for s, r in zip(seqs, many):
         alone = pt.track(s.depth, s.keypoints2d, s.confidence, s.intrinsics, mode="per-frame")
@@ -64,6 +62,42 @@ def test_track_many_equals_single_runs(seqs):
         d_alone = np.nanmean(np.linalg.norm(alone.keypoints3d - s.joints3d, axis=-1))
         assert abs(d_many - d_alone) < 1e-3, (d_many, d_alone)
         assert d_many < 0.1  # and both actually track
+
+
+def test_batched_chunks_drop_and_reinitialise_as_alone(seqs, monkeypatch):
+    """Inside a batch of chunks (B = 2, chunk 16) a track dropped in its second chunk (the
+    followed person hidden while a bystander is in view) throws away its queued third chunk
+    and re-initialises, as the sequence's run alone does; the other sequence (a shorter one)
+    is unaffected."""
+    seq = pt.synth.generate(
+        520, motion="wave", n_frames=40, occlusion_level=1, width=W, height=H, with_rgb=False,
+        bystander=True,
+    )  # fmt: skip
+    kp, conf = seq.people2d, seq.people_confidence.copy()
+    for t in range(14, 23):  # both people in view from frame 9: the followed one hidden
+        conf[t, seq.people_index[t]] = 0.0
+    conf[37:] = 0.0  # nobody
+    inputs = [(seq.intrinsics, seq.depth, kp, conf)]
+    inputs.append((seqs[1].intrinsics, seqs[1].depth, seqs[1].keypoints2d, seqs[1].confidence))
+    drops, drop = [], pt.Tracker._drop_track  # the frame of every drop
+
+    def record(tracker):
+        drops.append(tracker._run_frame)
+        drop(tracker)
+
+    monkeypatch.setattr(pt.Tracker, "_drop_track", record)
+    many = pt.track_many(inputs, batch=2, mode="per-frame")
+    batched, drops[:] = sorted(drops), []
+    for (intr, depth, k, c), r in zip(inputs, many):
+        alone = pt.Tracker(intr, mode="per-frame").run(depth, k, c)
+        np.testing.assert_array_equal(r.status, alone.status)
+        assert np.nanmax(np.abs(r.keypoints3d - alone.keypoints3d)) < 1e-3
+    assert batched == drops  # the same drop, at the same frame
+    # The first sequence went through every path: lost, a drop (lost_patience lost frames in
+    # a row), tracked again after it, and frames with nobody.
+    st = many[0].status
+    assert drops == [18] and (st[14:23] == pt.LOST).all()
+    assert (st[23:37] == pt.TRACKED).sum() > 8 and (st[37:] == pt.NO_OBSERVATION).all()
 
 
 def test_track_many_keeps_going_past_a_bad_sequence(seqs):
@@ -172,9 +206,21 @@ def test_two_processes_share_the_manifest_once(folders):
     out = folders / "out2"
     port = _free_port()
     procs = [
-        _spawn(_cli("--manifest", str(manifest), "--out", str(out), "--num-processes", "2",
-                    "--process-id", str(i), "--coordinator", f"127.0.0.1:{port}"),
-               folders / f"p{i}.log")  # fmt: skip
+        _spawn(
+            _cli(
+                "--manifest",
+                str(manifest),
+                "--out",
+                str(out),
+                "--num-processes",
+                "2",
+                "--process-id",
+                str(i),
+                "--coordinator",
+                f"127.0.0.1:{port}",
+            ),
+            folders / f"p{i}.log",
+        )  # fmt: skip
         for i in range(2)
     ]
     for p in procs:
