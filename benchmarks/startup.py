@@ -22,7 +22,7 @@ measured the same way, cold and warm, from launch to exit.
 Online (``--mode online``), ``first_published_s`` is when the first pose is published: the
 frame ``lag`` frames after the first one has been tracked (``Tracker.lagged``).
 
-Usage: python benchmarks/startup.py [--quick] [--mode offline|online]
+Usage: python benchmarks/startup.py [--quick] [--mode offline|online] [--chunk C]
 [--out benchmarks/results/startup.json]
 (``--quick``: 320x240 only, no command line rows.)
 """
@@ -44,7 +44,7 @@ FRAMES = 30
 SEED = 7  # any clip: the timings do not depend on the motion
 
 
-def _child(npz: str, cache: str, launched: float, mode: str) -> None:
+def _child(npz: str, cache: str, launched: float, mode: str, chunk: str) -> None:
     """One measured process (``--child``): prints one JSON line."""
     t_import0 = time.time()
     import numpy as np
@@ -66,7 +66,7 @@ def _child(npz: str, cache: str, launched: float, mode: str) -> None:
     def progress(done, total, postfix):
         first.append(time.time())
 
-    tracker = pt.Tracker(intr, mode=mode)
+    tracker = pt.Tracker(intr, mode=mode, chunk=int(chunk) if chunk else pt.RUN_CHUNK)
     result = tracker.run(depth, kp, conf, progress=progress)
     t_done = time.time()
     np.save(npz.replace(".npz", f"-{os.getpid()}.npy"), result.keypoints3d)
@@ -88,11 +88,12 @@ def _child(npz: str, cache: str, launched: float, mode: str) -> None:
     }))  # fmt: skip
 
 
-def _run_child(npz: Path, cache: Path, mode: str) -> dict:
+def _run_child(npz: Path, cache: Path, mode: str, chunk: int | None) -> dict:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     launched = time.time()
     proc = subprocess.run(
-        [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched), mode],
+        [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched), mode,
+         str(chunk or "")],
         capture_output=True, text=True, env=env, check=False,
     )  # fmt: skip
     if proc.returncode:
@@ -145,6 +146,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--mode", choices=("offline", "online"), default="offline")
+    ap.add_argument(
+        "--chunk",
+        type=int,
+        default=None,
+        help="Tracker(chunk=...): frames per compiled call (default: RUN_CHUNK)",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "startup.json"))
     args = ap.parse_args()
     import numpy as np
@@ -158,7 +165,7 @@ def main() -> None:
         for width, height in resolutions:
             npz = _make_clip(folder, width, height)
             cache = folder / f"cache-{width}x{height}"
-            runs = {run: _run_child(npz, cache, args.mode) for run in ("cold", "warm")}
+            runs = {run: _run_child(npz, cache, args.mode, args.chunk) for run in ("cold", "warm")}
             a, b = (np.load(runs[r]["poses"]) for r in ("cold", "warm"))
             same = bool(np.array_equal(a, b, equal_nan=True))
             for run, r in runs.items():
@@ -171,8 +178,7 @@ def main() -> None:
         cli = [] if args.quick or args.mode != "offline" else _cli_rows(folder)
 
     print(
-        f"\nTime to first pose, new process, shipped configuration ({args.mode}), "
-        f"{FRAMES} frames"
+        f"\nTime to first pose, new process, shipped configuration ({args.mode}), {FRAMES} frames"
     )
     print(f"{'depth':>10} {'run':>5} {'import':>7} {'1st pose':>9} {'published':>10} {'result':>7} "
           f"{'ms/frame':>9} {'traced s':>9} {'XLA/load s':>11} {'same':>5}")  # fmt: skip
@@ -191,11 +197,14 @@ def main() -> None:
             ratio = by[("1920x1080", run)] / by[("640x480", run)]
             print(f"1920x1080 / 640x480 first pose, {run}: {ratio:.2f}x")
     for r in cli:
-        print(f"posetrack track, 150 frames 320x240, {r['run']}: {r['wall_s']:.1f} s launch to exit")
+        print(
+            f"posetrack track, 150 frames 320x240, {r['run']}: {r['wall_s']:.1f} s launch to exit"
+        )
     record = {
         "benchmark": "startup",
         "frames": FRAMES,
         "mode": args.mode,
+        "chunk": args.chunk,
         "machine": machine_info(),
         "rows": rows,
         "cli_150_frames_320x240": cli,
@@ -207,6 +216,6 @@ def main() -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        _child(sys.argv[2], sys.argv[3], float(sys.argv[4]), sys.argv[5])
+        _child(*sys.argv[2:4], float(sys.argv[4]), *sys.argv[5:7])
     else:
         main()

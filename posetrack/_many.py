@@ -71,8 +71,9 @@ def track_many(
     frames (or per frame: online, or ``chunk=1``).
 
     Every sequence is tracked as :func:`posetrack.track` would track it alone (same ``seed``,
-    same host-side logic); only the tracker step runs batched (:class:`StepBatcher`), so
-    results agree with single runs up to float rounding.
+    same host-side logic); only the compiled steps run batched (:class:`ChunkBatcher`, or
+    :class:`StepBatcher` frame by frame), so results agree with single runs up to float
+    rounding.
 
     Args:
         sequences: :data:`SequenceInput` items.
