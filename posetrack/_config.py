@@ -19,6 +19,7 @@ import math
 import equinox as eqx
 
 from ._fit import FitSettings
+from ._observe import LIFT_RULES
 from ._render import DEFAULT_SHARPNESS
 from ._residuals import ResidualSettings
 from ._score import DEFAULT_D_M
@@ -102,6 +103,11 @@ class TrackerConfig(eqx.Module):
     estimate's root laterally and in depth (the paper's 'predefined range'). Traced."""
     lift_window: int = eqx.field(default=5, static=True)
     """Side of the depth window (pixels, at the sensor's resolution) of the lifting median."""
+    lift_rule: str = eqx.field(default="median", static=True)
+    """How a keypoint's depth is read from its window (:func:`~posetrack.lift_keypoints`):
+    "median" (default) or "nearest" (the median of the nearest cluster of depths: a thin
+    limb's own depth rather than the background around it; opt-in, see benchmarks/README.md).
+    Every lifting of the tracker uses it (step, initialisation, body-shape estimates)."""
     confidence_threshold: float = 0.4
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
     depth_confidence: float = 0.0
@@ -235,6 +241,10 @@ class TrackerConfig(eqx.Module):
                     raise ValueError(f"TrackerConfig.{name} must be a number, got {v!r}")
                 continue
             setattr(self, name, float(v))
+        if self.lift_rule not in LIFT_RULES:
+            raise ValueError(
+                f"TrackerConfig.lift_rule must be one of {LIFT_RULES}, got {self.lift_rule!r}"
+            )
         if self.num_hypotheses < 1:
             raise ValueError(
                 f"TrackerConfig.num_hypotheses must be >= 1, got {self.num_hypotheses}"

@@ -450,5 +450,5 @@ def tracker_landmarks(
     return lift_keypoints(
         depth, keypoints2d, confidence, intrinsics,
         window=config.lift_window, confidence_threshold=config.confidence_threshold,
-        depth_offset=landmark_offsets(config, shape),
+        depth_offset=landmark_offsets(config, shape), rule=config.lift_rule,
     )  # fmt: skip

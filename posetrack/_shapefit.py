@@ -320,7 +320,7 @@ def _observe_frames(config: TrackerConfig, intrinsics, floor, shape, poses, dept
         z_d, z_fg, known, small_intr = tracker_observation(config, d, intrinsics, floor, p[:3])
         lm = lift_keypoints(
             d, k, c, intrinsics, window=config.lift_window,
-            confidence_threshold=config.confidence_threshold,
+            confidence_threshold=config.confidence_threshold, rule=config.lift_rule,
         )  # fmt: skip
         norm = jnp.linalg.norm(lm.points3d, axis=-1, keepdims=True)
         rays = lm.points3d / jnp.where(norm > 0, norm, 1.0)

@@ -14,7 +14,7 @@ INTR = Intrinsics.create(fx=100.0, fy=100.0, cx=39.5, cy=29.5, width=80, height=
 
 @pytest.fixture(scope="module")
 def lift():
-    return jax.jit(lift_keypoints, static_argnames=("window", "min_valid"))
+    return jax.jit(lift_keypoints, static_argnames=("window", "min_valid", "rule"))
 
 
 def _scene():
@@ -76,6 +76,67 @@ def test_median_picks_the_majority_surface(lift):
     z = np.asarray(lm.points3d)[:, 2]
     # Window over columns 28..32: 2 box columns, 3 wall columns -> wall; 27..31: 3 box -> box.
     assert z[0] == pytest.approx(3.0) and z[1] == pytest.approx(1.5)
+
+
+def test_nearest_rule_reads_a_thin_limb_not_the_background(lift):
+    """A limb 2 px wide at 2 m over a wall at 4 m: the median of the 5x5 window on it is the
+    wall (10 of 25 pixels are limb), the nearest cluster is the limb; a speck nearer than
+    the limb (one pixel at 1 m, two at 1.3 m: fewer than min_valid) is no cluster."""
+    d = np.full((60, 80), 4.0, np.float32)
+    d[:, 40:42] = 2.0
+    d[30, 41], d[31, 41], d[29, 40] = 1.0, 1.3, 1.3
+    kp, conf = _kp([(41.0, 30.0, 1.0), (60.0, 30.0, 1.0)])
+    args = (jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR)
+    median = lift(*args, window=5, min_valid=3, rule="median")
+    nearest = lift(*args, window=5, min_valid=3, rule="nearest")
+    assert float(median.points3d[0, 2]) == pytest.approx(4.0)
+    assert float(nearest.points3d[0, 2]) == pytest.approx(2.0)
+    # On a flat wall both read the wall.
+    assert float(median.points3d[1, 2]) == float(nearest.points3d[1, 2]) == pytest.approx(4.0)
+    np.testing.assert_array_equal(median.has_depth, nearest.has_depth)
+
+
+def test_nearest_cluster_is_the_median_of_its_depths(lift):
+    """Within the nearest cluster the reading is its median (an even count: the mean of the
+    two middle values), not its minimum; depths beyond NEAREST_CLUSTER are not in it; and
+    where the window's median lies less than NEAREST_JUMP behind the cluster it stays."""
+    from posetrack._observe import NEAREST_CLUSTER, NEAREST_JUMP
+
+    d = np.zeros((60, 80), np.float32)
+    d[30, 38:42] = [2.0, 2.04, 2.1, 2.0 + NEAREST_CLUSTER + 0.01]  # cluster: 2.0, 2.04, 2.1
+    d[31:33, 38:42] = 3.0  # the background: 8 of 12 valid depths, the median
+    kp, conf = _kp([(40.0, 30.0, 1.0)])
+
+    def z(rule):
+        lm = lift(jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR, window=5,
+                  min_valid=3, rule=rule)  # fmt: skip
+        return float(lm.points3d[0, 2])
+
+    assert z("median") == pytest.approx(3.0) and z("nearest") == pytest.approx(2.04)
+    d[30, 42] = 2.12  # a fourth in the cluster: 2.04 and 2.1 in the middle
+    assert z("nearest") == pytest.approx(2.07)
+    d[31:33, 38:42] = 2.0 + NEAREST_JUMP - 0.05  # the rest nearer than the jump: the median
+    assert z("nearest") == z("median") == pytest.approx(2.0 + NEAREST_JUMP - 0.05)
+
+
+def test_lift_rule_is_validated_and_reaches_the_tracker_lifting():
+    kp, conf = _kp([])
+    with pytest.raises(ValueError, match="rule"):
+        lift_keypoints(jnp.zeros((60, 80)), jnp.asarray(kp), jnp.asarray(conf), INTR, rule="min")
+    with pytest.raises(ValueError, match="lift_rule"):
+        pt.TrackerConfig(lift_rule="min")
+    from posetrack._body import BodyShape
+    from posetrack._depthobs import tracker_landmarks
+
+    d = np.full((60, 80), 4.0, np.float32)
+    d[:, 40:42] = 2.0
+    kp, conf = _kp([(41.0, 30.0, 1.0)])
+    z = {}
+    for rule in ("median", "nearest"):
+        cfg = pt.TrackerConfig(lift_rule=rule, surface_offset=False)
+        lm = tracker_landmarks(cfg, BodyShape.default(), INTR, jnp.asarray(d), kp, conf)
+        z[rule] = float(lm.points3d[0, 2])
+    assert z == {"median": pytest.approx(4.0), "nearest": pytest.approx(2.0)}
 
 
 def test_even_count_median_and_min_valid(lift):
