@@ -68,8 +68,9 @@ class Pending:
 
     def get(self) -> Any:
         out = self._future.result()
-        out = jax.tree.map(lambda x: x[self._index], out)
-        return out if self._pick is None else self._pick(out)
+        if self._pick is not None:  # structural: pick the part first, slice only that
+            out = self._pick(out)
+        return jax.tree.map(lambda x: x[self._index], out)
 
     def part(self, pick: Callable) -> Pending:
         """The share of ``pick(results)``, e.g. ``pending.part(lambda r: r[0])``."""
