@@ -18,12 +18,13 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
   keypoints only (``refine=None``, ``--no-refine-shape``: "kp shape");
 * MHT_h ``mode="online"`` with lag 3 (``ONLINE_LAG``, the default of ``--online`` since
   2026-11-25: each pose waits for the 3 frames after it) and lag 0 (no delay); causal, the
-  body shape refined once after 60 tracked frames, the detector's left/right swaps undone
-  by the forward labelling with the depth judging each exchange over its first lag + 1
-  frames (the online default since 2026-11-26); lag 3 with the landmark-based shape
-  (``refine=None``: "kp shape"), without left/right relabelling ("no L/R", ``sides=None``,
-  ``--no-fix-sides``) and with the forward labelling taken as read ("L/R as read",
-  ``SideSettings(arbitrate=False)``, the opt-in before 2026-11-26).
+  body shape refined after 20 tracked frames and again after 60 (since 2026-11-27), the
+  detector's left/right swaps undone by the forward labelling with the depth judging each
+  exchange over its first lag + 1 frames (the online default since 2026-11-26); lag 3 with
+  the landmark-based shape (``refine=None``: "kp shape"), without left/right relabelling
+  ("no L/R", ``sides=None``, ``--no-fix-sides``), with the forward labelling taken as read
+  ("L/R as read", ``SideSettings(arbitrate=False)``, the opt-in before 2026-11-26) and with
+  the shape refined once, after 60 frames ("refined once", the default before 2026-11-27).
 
 Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
 swapped limb pair, the worst clip's D as a multiple of LVM's on the same clip, and on the
@@ -36,11 +37,13 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --clips 12          # ~15 min on 2 cores
     python benchmarks/motion.py --quick             # 3 clips
     python benchmarks/motion.py --motions real --clips 12   # real motion capture, ~30 min
+    python benchmarks/motion.py --online-only ...   # LVM and the online default only
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -60,6 +63,7 @@ ROWS = (
     "MHT_h offline, no L/R", "MHT_h offline, L/R unarbitrated", "MHT_h offline, kp shape",
     f"MHT_h online L={LAG}", "MHT_h online L=0", f"MHT_h online L={LAG}, kp shape",
     f"MHT_h online L={LAG}, no L/R", f"MHT_h online L={LAG}, L/R as read",
+    f"MHT_h online L={LAG}, refined once",
 )  # fmt: skip
 
 
@@ -68,47 +72,26 @@ def _tracked_twice(tracker: pt.Tracker) -> int:
     return sum(stop - start for start, stop, *_ in tracker.side_spans)
 
 
-def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) -> dict:
+#: ``--online-only``: the online default at both lags (and LVM, the reference of "worst").
+ONLINE_ROWS = (
+    "LVM", f"MHT_h online L={LAG}", "MHT_h online L=0", f"MHT_h online L={LAG}, refined once",
+)  # fmt: skip
+
+
+def run_clip(
+    seed: int, motion: str, occlusion: int, frames: int, variety: str, online_only: bool = False
+) -> dict:
+    """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`) and the costs
+    measured on it."""
     seq = pt.synth.generate(
         seed, motion=motion, n_frames=frames, fps=30.0, occlusion_level=occlusion,
         width=320, height=240, with_rgb=False, variety=variety,
     )  # fmt: skip
     args = (seq.depth, seq.keypoints2d, seq.confidence)
     out: dict[str, np.ndarray] = {}
-    pts, flags = pt.lift_sequence(*args, seq.intrinsics)
-    out["naive lifting"] = pt.naive_lifting(pts, flags)
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
-    out["MHT_h offline, L/R unarbitrated"] = pt.track(
-        *args, seq.intrinsics, sides=pt.SideSettings(arbitrate=False)
-    ).keypoints3d
-    out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
-    out[f"MHT_h online L={LAG}, kp shape"] = pt.track(
-        *args, seq.intrinsics, mode="online", refine=None
-    ).keypoints3d
-    out[f"MHT_h online L={LAG}, no L/R"] = pt.track(
-        *args, seq.intrinsics, mode="online", sides=None
-    ).keypoints3d
-    out[f"MHT_h online L={LAG}, L/R as read"] = pt.track(
-        *args, seq.intrinsics, mode="online", sides=pt.SideSettings(arbitrate=False)
-    ).keypoints3d
-    # Without relabelling: its per-frame pass is the paper's tracker on the detections as
-    # they come (the per-frame and Gaussian rows).
-    tr = pt.Tracker(seq.intrinsics, mode="offline", sides=None)
-    off = tr.run(*args)
-    out["MHT_h per-frame"] = off.per_frame_keypoints3d
-    out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
-    out["MHT_h offline, no L/R"] = off.keypoints3d
-    lr_tr = pt.Tracker(seq.intrinsics, mode="offline")  # the default
-    out["MHT_h offline"] = lr_tr.run(*args).keypoints3d
-    cost = {
-        "step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames,
-        "refine_s": tr.refine_s, "sides_ms": lr_tr.sides_s * 1000 / frames,
-        # The default's arbitration tracks each exchanged stretch twice: extra steps per frame.
-        "retracked_share": _tracked_twice(lr_tr) / frames,
-        "spans": len(lr_tr.side_spans),
-        "spans_exchanged": int(sum(s[-1] for s in lr_tr.side_spans)),
-    }  # fmt: skip
+    cost = {} if online_only else _offline_rows(seq, args, out, frames)
     for lag in (LAG, 0):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
         out[f"MHT_h online L={lag}"] = on_tr.run(*args).keypoints3d
@@ -119,7 +102,51 @@ def run_clip(seed: int, motion: str, occlusion: int, frames: int, variety: str) 
             # The online arbitration tracks the first frames of each exchange twice
             # (SideSettings.online_frames: lag + 1 by default).
             cost["online_retracked_share"] = _tracked_twice(on_tr) / frames
+    # The body shape refined once, after 60 tracked frames (the online default until
+    # 2026-11-27), instead of after 20 and again after 60.
+    once = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_first=0)
+    out[f"MHT_h online L={LAG}, refined once"] = pt.track(
+        *args, seq.intrinsics, mode="online", refine=once
+    ).keypoints3d
+    if online_only:
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
+    out[f"MHT_h online L={LAG}, kp shape"] = pt.track(
+        *args, seq.intrinsics, mode="online", refine=None
+    ).keypoints3d
+    out[f"MHT_h online L={LAG}, no L/R"] = pt.track(
+        *args, seq.intrinsics, mode="online", sides=None
+    ).keypoints3d
+    out[f"MHT_h online L={LAG}, L/R as read"] = pt.track(
+        *args, seq.intrinsics, mode="online", sides=pt.SideSettings(arbitrate=False)
+    ).keypoints3d
     return {"truth": seq.joints3d, "est": out, "cost": cost}
+
+
+def _offline_rows(seq, args, out: dict, frames: int) -> dict:
+    """Naive lifting, the per-frame, Gaussian and offline rows into ``out``; their costs."""
+    pts, flags = pt.lift_sequence(*args, seq.intrinsics)
+    out["naive lifting"] = pt.naive_lifting(pts, flags)
+    out["MHT_h offline, L/R unarbitrated"] = pt.track(
+        *args, seq.intrinsics, sides=pt.SideSettings(arbitrate=False)
+    ).keypoints3d
+    out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
+    # Without relabelling: its per-frame pass is the paper's tracker on the detections as
+    # they come (the per-frame and Gaussian rows).
+    tr = pt.Tracker(seq.intrinsics, mode="offline", sides=None)
+    off = tr.run(*args)
+    out["MHT_h per-frame"] = off.per_frame_keypoints3d
+    out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
+    out["MHT_h offline, no L/R"] = off.keypoints3d
+    lr_tr = pt.Tracker(seq.intrinsics, mode="offline")  # the default
+    out["MHT_h offline"] = lr_tr.run(*args).keypoints3d
+    return {
+        "step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames,
+        "refine_s": tr.refine_s, "sides_ms": lr_tr.sides_s * 1000 / frames,
+        # The default's arbitration tracks each exchanged stretch twice: extra steps per frame.
+        "retracked_share": _tracked_twice(lr_tr) / frames,
+        "spans": len(lr_tr.side_spans),
+        "spans_exchanged": int(sum(s[-1] for s in lr_tr.side_spans)),
+    }  # fmt: skip
 
 
 def main() -> int:
@@ -139,8 +166,13 @@ def main() -> int:
         "(accuracy.py's reported CMU / MSR Action3D / UTKinect clips, read from ../shared/data "
         "or $POSETRACK_DATA)",
     )  # fmt: skip
+    ap.add_argument(
+        "--online-only", action="store_true",
+        help="LVM and the online default at lags 3 and 0 only (a fifth of the time)",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
+    names = ONLINE_ROWS if a.online_only else ROWS
     clips = 3 if a.quick else a.clips
     motions = MOTIONS
     if a.motions == "real":
@@ -159,10 +191,10 @@ def main() -> int:
         seed = REPORT_SEEDS[a.start + i]
         motion = motions[(a.start + i) % len(motions)]
         for occ in (0, 2):
-            r = run_clip(seed, motion, occ, a.frames, a.variety)
+            r = run_clip(seed, motion, occ, a.frames, a.variety, a.online_only)
             gt = r["truth"]
             rows = {}
-            for name in ROWS:
+            for name in names:
                 est = r["est"][name]
                 acc = pt.accuracy(est, gt)
                 rows[name] = {
@@ -179,7 +211,7 @@ def main() -> int:
                 f"[{time.perf_counter() - t0:6.0f}s] seed {seed} {motion:11s} occl {occ}: "
                 + "  ".join(
                     f"{n.replace('MHT_h ', '')} {rows[n]['D_mm']:.0f}/{rows[n]['accel_mm']:.0f}"
-                    for n in ROWS
+                    for n in names
                 ),
                 file=sys.stderr,
                 flush=True,
@@ -188,7 +220,7 @@ def main() -> int:
     for cond, occs in (("clean", (0,)), ("occluded", (2,))):
         clips_c = [c for c in per_clip if c["occlusion"] in occs]
         summary[cond] = {}
-        for name in ROWS:
+        for name in names:
             vals = [c["rows"][name] for c in clips_c]
             ratio = [c["rows"][name]["D_mm"] / c["rows"]["LVM"]["D_mm"] for c in clips_c]
             worst = int(np.argmax([v["D_mm"] for v in vals]))
@@ -206,39 +238,42 @@ def main() -> int:
                 "jitter_mm": float(np.mean(jit)) if jit else None,
             }
     costs = [c["cost"] for c in per_clip]
-    step = float(np.median([c["step_ms"] for c in costs]))
     cost = {
-        "step_ms": step,
-        "offline_ms_per_frame": float(np.median([c["offline_ms"] for c in costs])),
-        # A clip's smoother time can include a compilation; the smallest is the steady state.
-        # benchmarks/speed.py measures both motion models' cost under control.
-        "offline_ms_per_frame_min": float(np.min([c["offline_ms"] for c in costs])),
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
-        # The offline left/right pre-pass (both directions), host side.
-        "sides_ms_per_frame": float(np.median([c["sides_ms"] for c in costs])),
-        # Frames the default's arbitration tracked a second time, as a share of all frames.
-        "retracked_share_mean": float(np.mean([c["retracked_share"] for c in costs])),
-        "retracked_share_max": float(np.max([c["retracked_share"] for c in costs])),
-        "spans": int(np.sum([c["spans"] for c in costs])),
-        "spans_exchanged": int(np.sum([c["spans_exchanged"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
         "online_retracked_share_mean": float(np.mean([c["online_retracked_share"] for c in costs])),
         "online_retracked_share_max": float(np.max([c["online_retracked_share"] for c in costs])),
-        # Body shape refinement: once per recording (the first clip's includes compilation).
-        "refine_s_median": float(np.median([c["refine_s"] for c in costs])),
-        # Online: the same refinement, once, after 60 tracked frames (a pause of update()).
+        # Online: the body shape refinement, once, after 60 tracked frames (a pause of update()).
         "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
     }
-    cost["offline_total_over_step"] = (
-        step * (1 + cost["retracked_share_mean"])
-        + cost["offline_ms_per_frame"]
-        + cost["sides_ms_per_frame"]
-    ) / step
-    cost["online_total_over_step"] = (
-        (cost["online_step_ms"] + cost["online_ms_per_frame"])
-        * (1 + cost["online_retracked_share_mean"])
-        / step
-    )
+    if not a.online_only:
+        step = float(np.median([c["step_ms"] for c in costs]))
+        cost.update({
+            "step_ms": step,
+            "offline_ms_per_frame": float(np.median([c["offline_ms"] for c in costs])),
+            # A clip's smoother time can include a compilation; the smallest is the steady
+            # state. benchmarks/speed.py measures both motion models' cost under control.
+            "offline_ms_per_frame_min": float(np.min([c["offline_ms"] for c in costs])),
+            # The offline left/right pre-pass (both directions), host side.
+            "sides_ms_per_frame": float(np.median([c["sides_ms"] for c in costs])),
+            # Frames the default's arbitration tracked a second time, as a share of all frames.
+            "retracked_share_mean": float(np.mean([c["retracked_share"] for c in costs])),
+            "retracked_share_max": float(np.max([c["retracked_share"] for c in costs])),
+            "spans": int(np.sum([c["spans"] for c in costs])),
+            "spans_exchanged": int(np.sum([c["spans_exchanged"] for c in costs])),
+            # Body shape refinement: once per recording (the first clip's includes compilation).
+            "refine_s_median": float(np.median([c["refine_s"] for c in costs])),
+        })  # fmt: skip
+        cost["offline_total_over_step"] = (
+            step * (1 + cost["retracked_share_mean"])
+            + cost["offline_ms_per_frame"]
+            + cost["sides_ms_per_frame"]
+        ) / step
+        cost["online_total_over_step"] = (
+            (cost["online_step_ms"] + cost["online_ms_per_frame"])
+            * (1 + cost["online_retracked_share_mean"])
+            / step
+        )
     truth_jit = [c["truth_jitter_mm"] for c in per_clip if c["truth_jitter_mm"] is not None]
     for cond in summary:
         n_c = sum(c["occlusion"] == (0 if cond == "clean" else 2) for c in per_clip)
@@ -254,25 +289,33 @@ def main() -> int:
             )
     if truth_jit:
         print(f"\ntruth's own jitter on the idle clips: {np.mean(truth_jit):.1f} mm/frame")
-    print(
-        f"\ncost per frame: step {step:.1f} ms; offline smoother "
-        f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
-        f" ms the least over clips; left/right pre-pass +{cost['sides_ms_per_frame']:.1f} ms, "
-        f"{100 * cost['retracked_share_mean']:.0f} % of the frames tracked twice (at most "
-        f"{100 * cost['retracked_share_max']:.0f} %; {cost['spans_exchanged']} of "
-        f"{cost['spans']} stretches kept exchanged); offline in all "
-        f"{cost['offline_total_over_step']:.2f}x the step; online model "
-        f"+{cost['online_ms_per_frame']:.1f} ms, "
-        f"{100 * cost['online_retracked_share_mean']:.0f} % of the frames tracked twice (at "
-        f"most {100 * cost['online_retracked_share_max']:.0f} %; "
-        f"{cost['online_total_over_step']:.2f}x the step in all); body shape refinement "
-        f"{cost['refine_s_median']:.1f} s per recording (median; online "
-        f"{cost['online_refine_s_median']:.1f} s, once)"
-    )
+    if a.online_only:
+        print(
+            f"\ncost per frame: online step {cost['online_step_ms']:.1f} ms, online model "
+            f"+{cost['online_ms_per_frame']:.1f} ms, "
+            f"{100 * cost['online_retracked_share_mean']:.0f} % of the frames tracked twice; "
+            f"body shape refinement {cost['online_refine_s_median']:.1f} s once (median)"
+        )
+    else:
+        print(
+            f"\ncost per frame: step {step:.1f} ms; offline smoother "
+            f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
+            f" ms the least over clips; left/right pre-pass +{cost['sides_ms_per_frame']:.1f} ms, "
+            f"{100 * cost['retracked_share_mean']:.0f} % of the frames tracked twice (at most "
+            f"{100 * cost['retracked_share_max']:.0f} %; {cost['spans_exchanged']} of "
+            f"{cost['spans']} stretches kept exchanged); offline in all "
+            f"{cost['offline_total_over_step']:.2f}x the step; online model "
+            f"+{cost['online_ms_per_frame']:.1f} ms, "
+            f"{100 * cost['online_retracked_share_mean']:.0f} % of the frames tracked twice (at "
+            f"most {100 * cost['online_retracked_share_max']:.0f} %; "
+            f"{cost['online_total_over_step']:.2f}x the step in all); body shape refinement "
+            f"{cost['refine_s_median']:.1f} s per recording (median; online "
+            f"{cost['online_refine_s_median']:.1f} s, once)"
+        )
     result = {
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
-        "variety": a.variety, "motions": a.motions,
+        "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -12,7 +12,7 @@ import copy
 import dataclasses
 import time
 from collections.abc import Callable, Sequence
-from functools import partial
+from functools import cache, partial
 
 import equinox as eqx
 import jax
@@ -638,6 +638,11 @@ class Tracker:
         self._online_refine_pending = self.mode == "online" and self.refine is not None
         self._online_tracked = 0
         self._online_kept: dict[int, tuple] = {}
+        # The optional earlier refinement (``refine.online_first``): its frames, and the shape
+        # the tracker began with (the later refinement starts from it again).
+        self._online_first_pending = self._online_refine_pending and self.refine.online_first > 0
+        self._online_kept_first: dict[int, tuple] = {}
+        self._online_shape0 = None
         self._arbitration = None
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
@@ -1000,8 +1005,9 @@ class Tracker:
         L frames back; with ``lag=0`` the estimate's ``params`` and ``keypoints3d`` are the
         smoothed pose of this frame itself (no delay, shakier). With ``refine`` (online's
         default), the call that completes ``refine.online_after`` tracked frames also refines
-        the body shape (a few seconds on a CPU, once; :attr:`refine_s`; while a left/right
-        stretch is judged, the call after the judgement). With ``sides``
+        the body shape (a few seconds on a CPU; :attr:`refine_s`, summed over the
+        refinements; while a left/right stretch is judged, the call after the judgement), and
+        so does the one that completes ``refine.online_first``, where set. With ``sides``
         (online's default), a frame in which the left/right labelling newly reads a group
         exchanged starts a stretch of :attr:`SideSettings.online_frames` frames (by default
         lag + 1) tracked both ways (two steps per frame); each call then returns the leading
@@ -1095,6 +1101,7 @@ class Tracker:
             self._window_valid.copy(), self.lagged, self._online_refine_pending,
             self._online_tracked, dict(self._online_kept), self._person, self.exchanged.copy(),
             self._veto.copy(), self._since_judged.copy(), self._depth_fit,
+            dict(self._online_kept_first),
         )  # fmt: skip
 
     def _restore_online(self, snap: tuple) -> None:
@@ -1102,9 +1109,11 @@ class Tracker:
         (
             self._window, frames, valid, self.lagged, self._online_refine_pending,
             self._online_tracked, kept, self._person, exchanged, veto, since, self._depth_fit,
+            kept_first,
         ) = snap[1:]  # fmt: skip
         self._window_frames, self._window_valid = frames.copy(), valid.copy()
         self._online_kept, self.exchanged = dict(kept), exchanged.copy()
+        self._online_kept_first = dict(kept_first)
         self._veto, self._since_judged = veto.copy(), since.copy()
 
     def _online_refine_frame(self, est: FrameEstimate) -> None:
@@ -1116,27 +1125,49 @@ class Tracker:
         if self._online_tracked >= R.online_after:  # all in; the refinement waits its turn
             return
         lm = est.landmarks
-        _keep_best_observed(
-            self._online_kept, self._online_tracked * R.frames // R.online_after,
-            int(np.asarray(lm.has_depth).sum()),
+        n3d = int(np.asarray(lm.has_depth).sum())
+        entry = cache(
             lambda: (
                 np.asarray(est.params), self._depth_fit, np.asarray(lm.keypoints2d),
                 np.asarray(lm.confidence), self._frames_seen - 1,
-            ),
+            )
         )  # fmt: skip
+        _keep_best_observed(
+            self._online_kept, self._online_tracked * R.frames // R.online_after, n3d, entry
+        )
+        if self._online_tracked < R.online_first:
+            _keep_best_observed(
+                self._online_kept_first, self._online_tracked * R.frames // R.online_first, n3d,
+                entry,
+            )  # fmt: skip
         self._online_tracked += 1
         if not self._arbitrates_online:  # else the next update refines, before any branching
             self._online_refine_due()
 
     def _online_refine_due(self) -> None:
-        """Refine the body shape online once ``refine.online_after`` tracked frames are in."""
+        """Refine the body shape online once ``refine.online_after`` tracked frames are in
+        (and once at ``refine.online_first``, where set)."""
+        if self._online_first_pending and self._online_tracked >= self.refine.online_first:
+            self._online_first_pending = False
+            kept = [self._online_kept_first[k][1:] for k in sorted(self._online_kept_first)]
+            self._online_kept_first = {}
+            if len(kept) >= _MIN_REFINE_FRAMES:
+                self._online_shape0 = self.shape
+                self._refine_on(*(np.stack(column) for column in zip(*kept)))
         if not self._online_refine_pending or self._online_tracked < self.refine.online_after:
             return
         self._online_refine_pending = False
         kept = [self._online_kept[k][1:] for k in sorted(self._online_kept)]
         self._online_kept = {}
         if len(kept) >= _MIN_REFINE_FRAMES:
+            first, first_s = None, 0.0
+            if self._online_shape0 is not None:  # the same prior as without the earlier one
+                self.shape = self._online_shape0
+                first, first_s = self.refine_report, self.refine_s
             self._refine_on(*(np.stack(column) for column in zip(*kept)))
+            self.refine_s += first_s
+            if first is not None:
+                self.refine_report["online_first"] = first
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""

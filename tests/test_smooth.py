@@ -312,16 +312,25 @@ def modes(clip):
     }
 
 
-def test_online_refines_the_body_shape_causally(clip, modes):
+@pytest.fixture(scope="module")
+def online_lag0_kp_shape(clip):
+    """Online at lag 0 without the body-shape refinement."""
+    return pt.track(
+        clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics, mode="online", lag=0,
+        refine=None,
+    )  # fmt: skip
+
+
+def test_online_refines_the_body_shape_causally(clip, modes, online_lag0_kp_shape):
     """Online, the body shape is refined once, after ``online_after`` tracked frames, on
     frames already seen: every frame up to then is what the tracker gives without the
     refinement (nothing from the future), the frames after use the refined shape."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     # 8 frames (the program the offline runs above compiled), after 16 tracked frames.
-    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=16)
+    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=16, online_first=0)
     tr = pt.Tracker(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(*args)
-    plain = pt.track(*args, clip.intrinsics, mode="online", lag=0, refine=None)
+    plain = online_lag0_kp_shape
     used = tr.refine_report["frames_used"]
     assert len(used) == 8 and used.max() < 16 and tr.refine_s > 0
     tracked = np.flatnonzero(res.status == 0)
@@ -336,6 +345,40 @@ def test_online_refines_the_body_shape_causally(clip, modes):
     off = modes["offline"].shape.to_dict()
     for k in ("torso", "shoulder_width", "upper_arm", "thigh"):
         assert abs(res.shape.to_dict()[k] - off[k]) < 0.15 * off[k], k
+
+
+def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_kp_shape):
+    """``online_first``: a first refinement after 8 tracked frames (on those), the frames
+    after it tracked with that shape, and the one after 16 frames starting again from the
+    landmark-based shape (the same prior), on the best frames of all 16."""
+    starts = []
+
+    class Spy(pt.Tracker):
+        def _refine_on(self, params, *rest):
+            starts.append((self.shape.to_dict(), len(params), self._online_tracked))
+            super()._refine_on(params, *rest)
+
+    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_first=8, online_after=16)
+    tr = Spy(clip.intrinsics, mode="online", lag=0, refine=settings)
+    res = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
+    plain = online_lag0_kp_shape
+    assert [(n, t) for _, n, t in starts] == [(8, 8), (8, 16)]
+    landmark_shape = plain.shape.to_dict()
+    assert starts[0][0] == landmark_shape and starts[1][0] == landmark_shape
+    used = tr.refine_report["frames_used"]  # the second refinement's frames
+    assert len(used) == 8 and used.max() < 16
+    assert len(tr.refine_report["online_first"]["frames_used"]) == 8
+    assert tr.refine_report["online_first"]["frames_used"].max() < 8
+    tracked = np.flatnonzero(res.status == 0)
+    first, second = int(tracked[7]), int(tracked[15])
+    np.testing.assert_array_equal(res.keypoints3d[: first + 1], plain.keypoints3d[: first + 1])
+    between = slice(first + 1, second + 1)
+    assert not np.array_equal(res.keypoints3d[between], plain.keypoints3d[between])
+    assert res.shape.to_dict() != landmark_shape
+    with pytest.raises(ValueError, match="online_first"):
+        pt.ShapeFitSettings(frames=8, online_first=4)
+    with pytest.raises(ValueError, match="online_first"):
+        pt.ShapeFitSettings(frames=8, online_first=60, online_after=60)
 
 
 def test_offline_is_the_per_frame_track_smoothed(clip, modes):
@@ -516,7 +559,7 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     refinement that comes due meanwhile runs after the decision, on frames seen before it."""
     sw = np.arange(12, 28)
     kp, conf = _arm_swap(clip, sw)
-    refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=13)
+    refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=13, online_first=0)
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=refine)
     fixed = tr.run(clip.depth, kp, conf)
     raw = pt.track(clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None)
