@@ -465,10 +465,12 @@ class Tracker:
     tracked frames against their depth (:meth:`ShapeFitSettings.tracking`). Offline it runs
     after the forward pass on frames spread over the recording, and the motion model then fits
     every frame with the refined shape (the per-frame poses' keypoints as its anchor). Online
-    it runs once, causally, when ``ShapeFitSettings.online_after`` (60) frames have been
-    tracked, on frames among those, and the frames after are tracked with the refined shape
-    (that :meth:`update` takes a few seconds longer on a CPU). Where a joint sits inside the
-    body, the shoulders above all, then follows the person rather than the default adult.
+    it runs causally, when ``ShapeFitSettings.online_first`` (20) and again when
+    ``online_after`` (60) frames have been tracked, each time on frames among those (the
+    second from the landmark-based shape again), and the frames after are tracked with the
+    refined shape (those two :meth:`update` calls take a few seconds longer on a CPU). Where
+    a joint sits inside the body, the shoulders above all, then follows the person rather
+    than the default adult.
     ``refine=None`` turns it off; :attr:`refine_report` says what it changed.
 
     **Several people in view.** Keypoints may list P people per frame (``(P, 18, 2)``, any
@@ -1119,8 +1121,8 @@ class Tracker:
     def _online_refine_frame(self, est: FrameEstimate) -> None:
         """Online body shape from depth, causally: keep the best-observed tracked frame of
         each of ``refine.frames`` stretches of the first ``refine.online_after`` tracked
-        frames; when they are all seen, refine :attr:`shape` on them once (the next frames are
-        tracked with it)."""
+        frames (and of the first ``refine.online_first``, where set); when they are all seen,
+        refine :attr:`shape` on them (the next frames are tracked with it)."""
         R = self.refine
         if self._online_tracked >= R.online_after:  # all in; the refinement waits its turn
             return

@@ -464,8 +464,9 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-refine-shape", action="store_true",
         help="keep the body dimensions measured between lifted keypoints instead of "
-        "refining them against the depth of 8 frames (offline: after tracking; online: once, "
-        "after 60 tracked frames; saves about 3-4 s, costs accuracy; see the README)",
+        "refining them against the depth of 8 frames (offline: after tracking; online: "
+        "after 20 and after 60 tracked frames; saves about 3-8 s, costs accuracy; see the "
+        "README)",
     )  # fmt: skip
 
 
