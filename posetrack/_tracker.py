@@ -1151,25 +1151,29 @@ class Tracker:
         (and once at ``refine.online_first``, where set)."""
         if self._online_first_pending and self._online_tracked >= self.refine.online_first:
             self._online_first_pending = False
-            kept = [self._online_kept_first[k][1:] for k in sorted(self._online_kept_first)]
-            self._online_kept_first = {}
+            kept, self._online_kept_first = self._online_kept_first, {}
             if len(kept) >= _MIN_REFINE_FRAMES:
                 self._online_shape0 = self.shape
-                self._refine_on(*(np.stack(column) for column in zip(*kept)))
+                self._refine_kept(kept)
         if not self._online_refine_pending or self._online_tracked < self.refine.online_after:
             return
         self._online_refine_pending = False
-        kept = [self._online_kept[k][1:] for k in sorted(self._online_kept)]
-        self._online_kept = {}
-        if len(kept) >= _MIN_REFINE_FRAMES:
-            first, first_s = None, 0.0
-            if self._online_shape0 is not None:  # the same prior as without the earlier one
-                self.shape = self._online_shape0
-                first, first_s = self.refine_report, self.refine_s
-            self._refine_on(*(np.stack(column) for column in zip(*kept)))
+        kept, self._online_kept = self._online_kept, {}
+        if len(kept) < _MIN_REFINE_FRAMES:
+            return
+        first, first_s = self.refine_report, self.refine_s
+        if self._online_shape0 is not None:  # the same prior as without the earlier one
+            self.shape = self._online_shape0
+        self._refine_kept(kept)
+        if self._online_shape0 is not None:
             self.refine_s += first_s
-            if first is not None:
-                self.refine_report["online_first"] = first
+            self.refine_report["online_first"] = first
+
+    def _refine_kept(self, kept: dict) -> None:
+        """:meth:`_refine_on` the frames of ``kept`` (stretch -> ``(n3d, *entry)``, see
+        :func:`_keep_best_observed`), in stretch order."""
+        rows = [kept[k][1:] for k in sorted(kept)]
+        self._refine_on(*(np.stack(column) for column in zip(*rows)))
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""
