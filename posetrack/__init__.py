@@ -75,6 +75,8 @@ from ._score import delta as delta
 from ._score import delta_batch as delta_batch
 from ._shapefit import ShapeFitSettings as ShapeFitSettings
 from ._shapefit import refine_shape as refine_shape
+from ._duplicates import DuplicateFilter as DuplicateFilter
+from ._duplicates import DuplicateSettings as DuplicateSettings
 from ._sides import SIDE_GROUPS as SIDE_GROUPS
 from ._sides import SideLabeller as SideLabeller
 from ._sides import SideSettings as SideSettings
@@ -142,6 +144,8 @@ __all__ = [
     # the detector's left/right swaps
     "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "prefer_exchanged",
     "two_sided_exchanged",
+    # a detection that jumped onto another keypoint
+    "DuplicateFilter", "DuplicateSettings",
     # which person is followed
     "FollowSettings", "choose_person", "detection_score", "lift_candidates", "match_costs",
     # metrics

@@ -35,6 +35,7 @@ from ._camera import Intrinsics
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
+from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
@@ -383,7 +384,7 @@ class _Prepared:
     exchanged: np.ndarray
     host: tuple
     """The host's state after preparing the frame: (follower reference, frames since it was
-    updated, labeller, frames seen); restored if the track is dropped here."""
+    updated, labeller, duplicate filter, frames seen); restored if the track is dropped here."""
 
 
 def _frame_delta(est: FrameEstimate | None, status: int) -> float:
@@ -500,6 +501,12 @@ class Tracker:
     any of them is published (:meth:`update`). :attr:`TrackResult.exchanged` says where
     labels were exchanged.
 
+    **A detection that jumped onto another keypoint** (an ankle reported on the neck for a
+    dozen frames, a wrist on the other wrist) is dropped before the labelling and the fit
+    while it stays away from where it was last seen (``duplicates``,
+    :class:`DuplicateSettings`; ``"auto"``, the default: on online, off offline and
+    per-frame; :attr:`duplicates_dropped` counts them).
+
     **Frames in chunks.** Offline and per-frame, :meth:`run` runs the steps of ``chunk``
     frames (default :data:`RUN_CHUNK`, 16) as one compiled call, the track-loss decisions
     inside it, and prepares the next chunk on the host while one computes; the poses are
@@ -525,6 +532,7 @@ class Tracker:
         sides: SideSettings | str | None = "auto",
         refine: ShapeFitSettings | str | None = "auto",
         chunk: int = RUN_CHUNK,
+        duplicates: DuplicateSettings | str | None = "auto",
     ):
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
@@ -554,6 +562,14 @@ class Tracker:
                 f"Tracker: sides must be 'auto', posetrack.SideSettings or None, got {sides!r}"
             )
         self.sides: SideSettings | None = sides
+        if isinstance(duplicates, str) and duplicates == "auto":
+            duplicates = DuplicateSettings() if mode == "online" else None
+        if duplicates is not None and not isinstance(duplicates, DuplicateSettings):
+            raise TypeError(
+                "Tracker: duplicates must be 'auto', posetrack.DuplicateSettings or None, got "
+                f"{duplicates!r}"
+            )
+        self.duplicates: DuplicateSettings | None = duplicates
         if isinstance(refine, str) and refine == "auto":
             auto = mode != "per-frame" and shape is None
             refine = ShapeFitSettings.tracking() if auto else None
@@ -688,6 +704,10 @@ class Tracker:
         self._labeller = (
             None if self.sides is None else SideLabeller(float(self.intrinsics.fx), self.sides)
         )
+        self._duplicate_filter = (
+            None if self.duplicates is None
+            else DuplicateFilter(float(self.intrinsics.fx), self.duplicates)
+        )  # fmt: skip
         self.exchanged = np.zeros(0 if self.sides is None else len(self.sides.groups), bool)
         """Which :attr:`sides` groups the last frame's detections had exchanged."""
         # Offline (run): the pre-pass's followed person and labelling per frame, and the frame
@@ -838,6 +858,8 @@ class Tracker:
         self._lost_run = 0
         if self._labeller is not None:
             self._labeller.reset()
+        if self._duplicate_filter is not None:
+            self._duplicate_filter.reset()
         # The next segment starts afresh: no smoothing across the re-initialisation.
         self._window = eqx.tree_at(
             lambda w: w.valid, self._window, jnp.zeros_like(self._window.valid)
@@ -861,6 +883,10 @@ class Tracker:
         if p < 0:
             return p, cands, depth_m, np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
         kp, conf = cands.person(p)
+        if self._duplicate_filter is not None:  # before the labelling: a jump misleads it too
+            conf, _ = self._duplicate_filter.update(
+                kp, conf, cands.points3d[p], cands.has_depth[p]
+            )
         if self._labeller is not None:
             raw, last = (kp, conf), self.exchanged  # last: the labelling of the last frame
             kp, conf, self.exchanged = self._labeller.update(
@@ -901,6 +927,13 @@ class Tracker:
         if persons[self._run_frame] == p and not self._as_detected:
             return exchanged[self._run_frame]
         return np.zeros_like(forward) if self.sides.arbitrate else forward
+
+    @property
+    def duplicates_dropped(self) -> int:
+        """Keypoint detections dropped so far because they jumped onto another keypoint
+        (:attr:`duplicates`; 0 without it)."""
+        f = self._duplicate_filter
+        return 0 if f is None else f.dropped_count
 
     @property
     def initialized(self) -> bool:
@@ -1435,7 +1468,7 @@ class Tracker:
             frames.append(_Prepared(
                 t, p, cands, depth_fit, kp, conf, lost_only, self._person, self.exchanged.copy(),
                 (self._follower.reference, self._follower.since, copy.deepcopy(self._labeller),
-                 self._frames_seen),
+                 copy.deepcopy(self._duplicate_filter), self._frames_seen),
             ))  # fmt: skip
             t += 1
         return frames, t
@@ -1499,7 +1532,7 @@ class Tracker:
             if dropped:
                 # As after this frame's update: the later frames' preparation undone.
                 (self._follower.reference, self._follower.since, self._labeller,
-                 self._frames_seen) = f.host  # fmt: skip
+                 self._duplicate_filter, self._frames_seen) = f.host  # fmt: skip
                 self._person, self.exchanged, self._run_frame = f.person, f.exchanged.copy(), f.t
                 self._drop_track()
                 return f.t + 1
@@ -1625,16 +1658,18 @@ class Tracker:
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
             self._key, self._frames_seen,
             copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
+            copy.deepcopy(self._duplicate_filter),
         )  # fmt: skip
 
     def _restore(self, snap: tuple) -> None:
         (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
-            self._key, self._frames_seen, follower, labeller,
+            self._key, self._frames_seen, follower, labeller, duplicate_filter,
         ) = snap  # fmt: skip
         keep = {id(self.intrinsics): self.intrinsics}
         self._follower = copy.deepcopy(follower, keep)
         self._labeller = copy.deepcopy(labeller)
+        self._duplicate_filter = copy.deepcopy(duplicate_filter)
 
     def _refine_settings(self) -> ShapeFitSettings:
         """:attr:`refine`, its image no larger than the sensor's."""
@@ -1750,6 +1785,7 @@ def track(
     sides: SideSettings | str | None = "auto",
     refine: ShapeFitSettings | str | None = "auto",
     chunk: int = RUN_CHUNK,
+    duplicates: DuplicateSettings | str | None = "auto",
 ) -> TrackResult:
     """Track a sequence in one call (see :class:`Tracker`). ``keypoints2d[t]`` is one person
     ``(18, 2)`` or every detected person ``(P, 18, 2)``. ``mode``: "offline" (default: the
@@ -1759,10 +1795,13 @@ def track(
     undoes the detector's left/right swaps (:class:`SideSettings`; ``"auto"``: offline, read
     from both directions and arbitrated by the depth; online, read forwards and each exchange
     judged by the depth before it is published; ``None``: off); ``chunk``: frames per compiled
-    call (:data:`RUN_CHUNK`; 1: one call per frame, the same poses)."""
+    call (:data:`RUN_CHUNK`; 1: one call per frame, the same poses); ``duplicates`` drops
+    detections that jumped onto another keypoint (:class:`DuplicateSettings`; ``"auto"``:
+    online only)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides, refine=refine, chunk=chunk,
+        duplicates=duplicates,
     ).run(depths, keypoints2d, confidence, progress=progress)  # fmt: skip
 
 

@@ -680,3 +680,23 @@ def test_online_run_records_a_judged_stretch_as_the_kept_reading_saw_it(clip, mo
     judged = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
     assert tr.side_spans[0][:2] == (10, 10 + k) and tr.side_spans[0][-1]
     assert judged.exchanged[10 : 10 + k, 0].all() and not judged.exchanged[:10].any()
+
+
+def test_online_an_ankle_reported_on_the_neck_is_dropped_not_fitted(clip):
+    """Frames 12-27: the detector reports the left ankle on the neck (its own few pixels of
+    noise, an ordinary confidence). Online (duplicates on by default) the tracker drops it
+    and keeps the ankle where the leg is; without the filter the shank folds up to reach it."""
+    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
+    ep = np.arange(12, 28)
+    kp[ep, 13] = kp[ep, 1] + np.random.default_rng(0).uniform(-3.0, 3.0, (len(ep), 2))
+    conf[ep, 13] = 0.55
+    errs, dropped = {}, {}
+    for name, dup in (("filter", "auto"), ("none", None)):
+        t = pt.Tracker(clip.intrinsics, mode="online", duplicates=dup)
+        r = t.run(clip.depth, kp, conf)
+        errs[name] = np.linalg.norm(r.keypoints3d[ep, 13] - clip.joints3d[ep, 13], axis=-1)
+        dropped[name] = t.duplicates_dropped
+    print({k: float(v.mean()) for k, v in errs.items()}, dropped)
+    assert dropped["none"] == 0 and dropped["filter"] >= len(ep)
+    assert errs["filter"].max() < 0.1  # m
+    assert errs["none"].mean() > 0.3  # the fold the filter prevents

@@ -261,6 +261,8 @@ def _track(args) -> int:
             {"start": a, "stop": b, "delta_detected": da, "delta_exchanged": dx, "kept": k}
             for a, b, da, dx, k in tracker.side_spans
         ],
+        # Keypoint detections dropped because they jumped onto another keypoint (online).
+        "detections_dropped": tracker.duplicates_dropped,
         "shape_refinement": _shape_summary(tracker),
         "timing": {
             "load_s": t_loaded - t_start,
@@ -295,6 +297,11 @@ def _track(args) -> int:
     if undone and any(undone.values()):
         listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
         print(f"left/right swaps of the detector undone (frames): {listed}")
+    if tracker.duplicates_dropped:
+        print(
+            f"keypoint detections dropped (jumped onto another keypoint): "
+            f"{tracker.duplicates_dropped}"
+        )
     if interpolated and any(interpolated.values()):
         listed = ", ".join(f"{n} {k}" for n, k in interpolated.items() if k)
         print(f"limbs started from their neighbours' pose by the motion model (frames): {listed}")
