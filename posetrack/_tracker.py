@@ -930,8 +930,8 @@ class Tracker:
 
     @property
     def duplicates_dropped(self) -> int:
-        """Keypoint detections dropped so far because they jumped onto another keypoint
-        (:attr:`duplicates`; 0 without it)."""
+        """Keypoint detections dropped because they jumped onto another keypoint, since the
+        tracker was made or :meth:`reset` (:attr:`duplicates`; 0 without it)."""
         f = self._duplicate_filter
         return 0 if f is None else f.dropped_count
 
