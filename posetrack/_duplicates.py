@@ -41,6 +41,8 @@ import dataclasses
 
 import numpy as np
 
+from ._sides import metres_per_pixel
+
 
 @dataclasses.dataclass(frozen=True)
 class DuplicateSettings:
@@ -111,13 +113,10 @@ class DuplicateFilter:
         points3d: np.ndarray,
         has_depth: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Take one frame of the followed person.
-
-        Args:
-            keypoints2d: ``(18, 2)`` pixels. confidence: ``(18,)``, 0 = missing.
-            points3d: ``(18, 3)`` plainly lifted keypoints, metres (only their median depth
-                is used, to turn pixels into metres).
-            has_depth: ``(18,)`` where ``points3d`` is valid.
+        """Take one frame of the followed person (the arguments of
+        :meth:`~posetrack.SideLabeller.update`: ``(18, 2)`` pixels, ``(18,)`` confidences,
+        and the plainly lifted ``(18, 3)`` points with their ``(18,)`` flags, whose median
+        depth turns pixels into metres).
 
         Returns:
             ``(confidence, dropped)``: a copy of ``confidence`` with the dropped keypoints' set
@@ -128,8 +127,7 @@ class DuplicateFilter:
         conf = np.asarray(confidence).reshape(18)
         p3 = np.asarray(points3d, np.float64).reshape(18, 3)
         seen = (conf > s.min_confidence) & np.isfinite(kp).all(axis=-1)
-        h3 = np.asarray(has_depth, bool).reshape(18) & np.isfinite(p3).all(axis=-1) & seen
-        m_per_px = (float(np.median(p3[h3, 2])) if h3.any() else 3.0) / self.fx
+        m_per_px = metres_per_pixel(p3, has_depth, seen, self.fx)
         apart = np.linalg.norm(kp[:, None] - kp[None], axis=-1) * m_per_px
         coincident = (apart < s.radius) & seen[:, None] & seen[None, :] & ~np.eye(18, dtype=bool)
         moved = np.linalg.norm(kp - self._px, axis=-1) * m_per_px - s.speed * (self._age - 1.0)

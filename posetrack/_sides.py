@@ -212,6 +212,15 @@ class SideSettings:
         object.__setattr__(self, "groups", groups)
 
 
+def metres_per_pixel(
+    points3d: np.ndarray, has_depth: np.ndarray, seen: np.ndarray, fx: float
+) -> float:
+    """Metres per image pixel at a person's depth: the median depth of their seen keypoints'
+    ``(18, 3)`` plainly lifted points (3 m where none has depth) over the focal length."""
+    h3 = np.asarray(has_depth, bool).reshape(18) & np.isfinite(points3d).all(axis=-1) & seen
+    return (float(np.median(points3d[h3, 2])) if h3.any() else 3.0) / fx
+
+
 class SideLabeller:
     """The forward pass over one followed person's frames (see the module docstring).
 
@@ -296,9 +305,7 @@ class SideLabeller:
         conf = np.asarray(confidence, np.float64).reshape(18)
         p3 = np.asarray(points3d, np.float64).reshape(18, 3)
         seen = (conf > s.min_confidence) & np.isfinite(kp).all(axis=-1)
-        h3 = np.asarray(has_depth, bool).reshape(18) & np.isfinite(p3).all(axis=-1) & seen
-        z_ref = float(np.median(p3[h3, 2])) if h3.any() else 3.0
-        m_per_px = z_ref / self.fx
+        m_per_px = metres_per_pixel(p3, has_depth, seen, self.fx)
         for g, orders in enumerate(zip(self._slots, self._flipped, strict=True)):
             # What fills the slots under each labelling: (labelling, slot, ...).
             okp, oseen = kp[np.stack(orders)], seen[np.stack(orders)]
