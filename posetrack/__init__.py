@@ -40,6 +40,8 @@ from ._config import TrackerConfig as TrackerConfig
 from ._depthobs import downsample_depth as downsample_depth
 from ._depthobs import fit_floor_plane as fit_floor_plane
 from ._depthobs import observation_maps as observation_maps
+from ._duplicates import DuplicateFilter as DuplicateFilter
+from ._duplicates import DuplicateSettings as DuplicateSettings
 from ._fit import FitResult as FitResult
 from ._fit import FitSettings as FitSettings
 from ._fit import fit_hypotheses as fit_hypotheses
@@ -75,8 +77,6 @@ from ._score import delta as delta
 from ._score import delta_batch as delta_batch
 from ._shapefit import ShapeFitSettings as ShapeFitSettings
 from ._shapefit import refine_shape as refine_shape
-from ._duplicates import DuplicateFilter as DuplicateFilter
-from ._duplicates import DuplicateSettings as DuplicateSettings
 from ._sides import SIDE_GROUPS as SIDE_GROUPS
 from ._sides import SideLabeller as SideLabeller
 from ._sides import SideSettings as SideSettings
