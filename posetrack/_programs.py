@@ -42,6 +42,7 @@ import pickle
 import tempfile
 import threading
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -55,6 +56,8 @@ _FORMAT = 1
 _CORE = Path(__file__).resolve().parent
 
 _store: dict[str, Path | None] = {"dir": None}
+#: Set once the user was told that programs cannot be stored (a missing module).
+_STORE_WARNED = threading.Event()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -443,6 +446,18 @@ def _write(path: Path, exported, out_tree) -> bool:
             Path(tmp).unlink(missing_ok=True)
             raise
         return True
+    except ImportError as e:
+        # jax.export's serialisation needs ``flatbuffers`` (a posetrack dependency, not a
+        # jax one): say once why warm starts will trace again instead of failing silently.
+        if not _STORE_WARNED.is_set():
+            _STORE_WARNED.set()
+            warnings.warn(
+                f"posetrack: traced programs are not stored ({e}); every start traces them "
+                "again. `pip install flatbuffers` turns the store on.",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        return False
     except Exception:
         return False
 

@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 
 import equinox as eqx
 import jax
@@ -131,6 +132,32 @@ def test_a_corrupt_or_foreign_file_is_ignored_and_rewritten(store):
     assert np.allclose(out["sum"], jnp.sin(x) + 1.0)
     assert path.read_bytes() != b"not a program"
     assert not list(store.glob(".tmp-*"))  # no half-written leftovers
+
+
+def test_the_serialiser_of_the_store_is_installed():
+    """jax.export imports ``flatbuffers`` to serialise and jax does not require it: a fresh
+    install without it traced every program again on each start (14 s warm instead of 2)."""
+    import flatbuffers  # noqa: F401  (a posetrack dependency for this reason)
+
+    exported = jax.export.export(jax.jit(jnp.sin))(jax.ShapeDtypeStruct((2,), jnp.float32))
+    assert jax.export.deserialize(exported.serialize()).call(jnp.ones(2)).shape == (2,)
+
+
+def test_a_store_that_cannot_serialise_says_so_once_and_still_computes(store, monkeypatch):
+    def missing(self, *args, **kwargs):
+        raise ImportError("Please install 'flatbuffers' in order to use Exported serialization")
+
+    monkeypatch.setattr(jax.export.Exported, "serialize", missing)
+    monkeypatch.setattr(_programs, "_STORE_WARNED", threading.Event())
+    x, y = jnp.arange(3.0), jnp.float32(1.0)
+    with pytest.warns(RuntimeWarning, match="flatbuffers"):
+        out = _fresh("unserialisable")(Scale(1.0), x, y)
+    assert _programs.log()[-1].source == "jit"
+    assert np.allclose(out["sum"], jnp.sin(x) + 1.0)
+    assert not list(store.glob("unserialisable-*")) and not list(store.glob(".tmp-*"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the second program is not warned about again
+        _fresh("unserialisable2")(Scale(1.0), x, y)
 
 
 def test_without_a_store_nothing_is_written(tmp_path):
