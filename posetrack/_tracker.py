@@ -762,38 +762,10 @@ class Tracker:
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
         intr = self.intrinsics
         depth, kp, conf = f32(intr.shape), f32((18, 2)), f32((18,))
-        lm = jax.eval_shape(
-            partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
-        )
         key = jax.ShapeDtypeStruct(self._key.shape, self._key.dtype)  # a split key's too
         state = TrackState(
             hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key
         )
-        jobs = [
-            (lift, (self.config, shape, intr, depth, kp, conf)),
-            (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm, key)),
-        ]
-        later = []
-        if self.mode == "offline":
-            W = self.motion.window
-            window_lm = jax.tree.map(lambda a: jax.ShapeDtypeStruct((W, *a.shape), a.dtype), lm)
-            later.append((smooth_window_program, (
-                self.motion, shape, intr, f32((W, 43)), window_lm,
-                jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
-            )))  # fmt: skip
-        elif self.mode == "online":
-            # Every online frame runs it, the first one included: it builds beside the step.
-            jobs.append((online_update_program, (
-                self.motion, shape, f32(()), jax.eval_shape(lambda: self._window), f32((18, 3)),
-                f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool), self.lag,
-            )))  # fmt: skip
-        if self.refine is not None and not self.refine.crop:
-            # Working out their argument shapes traces the observation (about 1 s): done in
-            # the builder thread, not before the first frame.
-            later.append(partial(
-                refine_programs, self._refine_settings(), self.config, shape, intr,
-                self.refine.frames,
-            ))  # fmt: skip
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
         main = step
         if (not update or self._batched is not None) and self._chunked:
@@ -804,12 +776,56 @@ class Tracker:
                 f32((2,)), jax.ShapeDtypeStruct((C,), bool), jax.ShapeDtypeStruct((C,), bool),
                 f32((C, *intr.shape)), f32((C, 18, 2)), f32((C, 18)),
             )  # fmt: skip
+
+        def landmarks():  # their structure: tracing the lifting (~0.1 s), off the step's path
+            return jax.eval_shape(
+                partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
+            )  # fmt: skip
+
+        def first_jobs() -> list:  # what the first frame needs beside the step
+            lm = landmarks()
+            jobs = [
+                (lift, (self.config, shape, intr, depth, kp, conf)),
+                (initial_fit, (self._init_settings, shape, intr, f32((43,)), lm, key)),
+            ]
+            if self.mode == "online":
+                # Every online frame runs it, the first one included: it builds beside the
+                # step.
+                jobs.append((online_update_program, (
+                    self.motion, shape, f32(()), jax.eval_shape(lambda: self._window),
+                    f32((18, 3)), f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool),
+                    self.lag,
+                )))  # fmt: skip
+            return jobs
+
+        def smooth_jobs() -> list:  # the offline motion model (needed after the frames)
+            if self.mode != "offline":
+                return []
+            W = self.motion.window
+            window_lm = jax.tree.map(
+                lambda a: jax.ShapeDtypeStruct((W, *a.shape), a.dtype), landmarks()
+            )  # fmt: skip
+            return [(smooth_window_program, (
+                self.motion, shape, intr, f32((W, 43)), window_lm,
+                jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
+            ))]  # fmt: skip
+
+        def refine_jobs() -> list:  # the body-shape refinement (after the first frames)
+            if self.refine is None or self.refine.crop:
+                return []
+            # Working out their argument shapes traces the observation (about 1 s): done in
+            # the builder thread, not before the first frame.
+            return refine_programs(
+                self._refine_settings(), self.config, shape, intr, self.refine.frames
+            )  # fmt: skip
+
+        later = [smooth_jobs, refine_jobs]
         if self._batched is not None:  # track_many: the batcher compiles the batched program
             self._batched[0].prepare(step_args)
-            prepare_in_background([*jobs, *later])
+            prepare_in_background([first_jobs, *later])
             return
         if not background:
-            prepare_now([*jobs, (main, step_args), *later])
+            prepare_now([first_jobs, (main, step_args), *later])
             return
         # The step (the big program), then the offline motion model and the body-shape
         # refinement (the first frames do not need them) in one thread. Tracing holds the
@@ -818,7 +834,7 @@ class Tracker:
         # the step's.
         prepare_in_background([(main, step_args), *later])
         main.wait_traced(*step_args)
-        prepare_in_background(jobs)
+        prepare_in_background([first_jobs])
 
     def _lift(self, depth_m, kp, conf) -> Landmarks:
         shape = self.shape if self.shape is not None else body.BodyShape.default(_DTYPE)
@@ -1419,12 +1435,17 @@ class Tracker:
         never read: the frames after the drop are prepared again, from a new track."""
         pending = None  # (prepared frames, the call's outputs, seconds at dispatch)
         self._chunk_read = 0.0  # when the last chunk's results were read
+        # A tracker's first call steps one frame (padding after it): the first pose then
+        # comes as soon as the program is ready, not a whole chunk's steps later.
+        limit = 1 if self._step_calls == 0 else self.chunk
         while True:
             frames: list[_Prepared] = []
             if t < stop:
                 frames, t = self._prepare_chunk(
-                    out, kept, n_keep, depths, keypoints2d, confidence, progress, t, stop
+                    out, kept, n_keep, depths, keypoints2d, confidence, progress, t, stop,
+                    limit,
                 )  # fmt: skip
+                limit = self.chunk
             call = self._dispatch_chunk(frames) if frames else None
             if pending is not None:
                 resume = self._finish_chunk(
@@ -1442,14 +1463,14 @@ class Tracker:
 
     def _prepare_chunk(
         self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,
-        progress, t: int, stop: int,
+        progress, t: int, stop: int, limit: int,
     ) -> tuple[list[_Prepared], int]:
         """The host's part of :meth:`update` before the step, for the frames from ``t`` until
-        :attr:`chunk` of them have a live track (or ``stop``). Without a track (never while a
+        ``limit`` (at most :attr:`chunk`) of them have a live track (or ``stop``). Without a track (never while a
         chunk is queued: it leaves its state) a frame either (re-)initialises it or is
         recorded at once, without a step. Returns the prepared frames and the next frame."""
         frames: list[_Prepared] = []
-        while t < stop and len(frames) < self.chunk:
+        while t < stop and len(frames) < limit:
             self._run_frame = t
             self._frames_seen += 1
             depth_m = check_depth(self.intrinsics, depths[t], self.depth_scale, f"frame {t}")

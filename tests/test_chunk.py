@@ -79,6 +79,26 @@ def test_chunked_run_is_the_per_frame_run(scene):
     assert step_chunk._cache_size() == built
 
 
+def test_a_trackers_first_call_steps_one_frame(scene):
+    """The first pose does not wait for a whole chunk's steps: a tracker's first call steps
+    one frame, the later ones a chunk each (the poses are the per-frame run's, above)."""
+    seq, kp, conf = scene
+    tracker = pt.Tracker(seq.intrinsics, LVM, mode="per-frame", chunk=16)
+    sizes, at_first_pose, dispatch = [], [], tracker._dispatch_chunk
+    tracker._dispatch_chunk = lambda frames: (sizes.append(len(frames)), dispatch(frames))[1]
+
+    def progress(done, total, postfix):
+        if not at_first_pose:
+            at_first_pose.append(list(sizes))
+
+    tracker.run(seq.depth[:20], kp[:20], conf[:20], progress=progress)
+    assert sizes == [1, 16, 3]
+    # Reported once that first step was read: the next chunk may be queued behind it.
+    assert at_first_pose[0][0] == 1 and len(at_first_pose[0]) <= 2
+    tracker.run(seq.depth[:20], kp[:20], conf[:20], progress=None)  # the track goes on
+    assert sizes[3:] == [16, 4]
+
+
 def test_chunk_must_be_a_positive_int(scene):
     seq = scene[0]
     for bad in (0, -3, 2.5, True):
