@@ -107,6 +107,22 @@ def device_f32(x) -> jax.Array:
     return jax.device_put(np.asarray(x, np.float32))
 
 
+def device_key(seed) -> jax.Array:
+    """``jax.random.PRNGKey(seed)``, made on the host where its bits are known (the default
+    threefry implementation, 32-bit mode: ``[0, seed mod 2**32]``): the eager op is a small
+    program, compiled on a cold start before the tracker's programs can start, loaded from
+    the cache warm (~0.1 s). Anything else is left to JAX."""
+    if (
+        isinstance(seed, (int, np.integer))
+        and not isinstance(seed, bool)
+        and -(2**63) <= int(seed) < 2**63
+        and not jax.config.jax_enable_x64
+        and str(jax.config.jax_default_prng_impl) == "threefry2x32"
+    ):
+        return jax.device_put(np.array([0, int(seed) % 2**32], np.uint32))
+    return jax.random.PRNGKey(seed)
+
+
 def log() -> list[ProgramEvent]:
     """Every program made ready in this process, in order."""
     return list(_log)

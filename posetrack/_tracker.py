@@ -40,7 +40,9 @@ from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._observe import Landmarks
-from ._programs import Program, device_f32, prepare_in_background, prepare_now, program
+from ._programs import (
+    Program, device_f32, device_key, prepare_in_background, prepare_now, program,
+)
 from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import (
@@ -617,7 +619,7 @@ class Tracker:
         self.shape = (
             None if shape is None else jax.tree.map(device_f32, shape)
         )
-        self._key = jax.random.PRNGKey(seed)
+        self._key = device_key(seed)
         self._state: TrackState | None = None
         self._floor = device_f32(NO_FLOOR)
         self._lost_run = 0

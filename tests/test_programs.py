@@ -160,6 +160,15 @@ def test_a_store_that_cannot_serialise_says_so_once_and_still_computes(store, mo
         _fresh("unserialisable2")(Scale(1.0), x, y)
 
 
+@pytest.mark.parametrize(
+    "seed", [0, 1, 7, 2**31 - 1, 2**31, 2**32 - 1, 2**32 + 5, 2**62, -1, -(2**40), np.int64(9)]
+)
+def test_a_key_made_on_the_host_is_jaxs_key(seed):
+    a, b = jax.random.PRNGKey(seed), _programs.device_key(seed)
+    assert np.array_equal(np.asarray(a), np.asarray(b))
+    assert (a.shape, a.dtype, a.weak_type) == (b.shape, b.dtype, b.weak_type)
+
+
 def test_without_a_store_nothing_is_written(tmp_path):
     saved = _programs.cache_dir()
     _programs._store["dir"] = None
