@@ -512,8 +512,9 @@ class Tracker:
     **Frames in chunks.** Offline and per-frame, :meth:`run` runs the steps of ``chunk``
     frames (default :data:`RUN_CHUNK`, 16) as one compiled call, the track-loss decisions
     inside it, and prepares the next chunk on the host while one computes; the poses are
-    those of one call per frame (``chunk=1``, what :meth:`update` does), bit for bit. The
-    first pose of :meth:`run` then comes after the first chunk. Online, :meth:`run` goes
+    those of one call per frame (``chunk=1``, what :meth:`update` does), bit for bit. A
+    tracker's first call steps one frame, so the first pose does not wait for a whole chunk;
+    the poses of a chunk are reported when its call is done. Online, :meth:`run` goes
     frame by frame (the motion model and the left/right judgement run between frames).
     """
 
@@ -1468,9 +1469,9 @@ class Tracker:
         progress, t: int, stop: int, limit: int,
     ) -> tuple[list[_Prepared], int]:
         """The host's part of :meth:`update` before the step, for the frames from ``t`` until
-        ``limit`` (at most :attr:`chunk`) of them have a live track (or ``stop``). Without a track (never while a
-        chunk is queued: it leaves its state) a frame either (re-)initialises it or is
-        recorded at once, without a step. Returns the prepared frames and the next frame."""
+        ``limit`` (at most :attr:`chunk`) of them have a live track (or ``stop``). Without a
+        track (never while a chunk is queued: it leaves its state) a frame either
+        (re-)initialises it or is recorded at once, without a step. Returns the prepared frames and the next frame."""
         frames: list[_Prepared] = []
         while t < stop and len(frames) < limit:
             self._run_frame = t
