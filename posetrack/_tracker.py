@@ -1471,7 +1471,8 @@ class Tracker:
         """The host's part of :meth:`update` before the step, for the frames from ``t`` until
         ``limit`` (at most :attr:`chunk`) of them have a live track (or ``stop``). Without a
         track (never while a chunk is queued: it leaves its state) a frame either
-        (re-)initialises it or is recorded at once, without a step. Returns the prepared frames and the next frame."""
+        (re-)initialises it or is recorded at once, without a step. Returns the prepared
+        frames and the next frame."""
         frames: list[_Prepared] = []
         while t < stop and len(frames) < limit:
             self._run_frame = t
