@@ -126,11 +126,7 @@ class BodyShape(eqx.Module):
     def default(dtype=None) -> BodyShape:
         """An average adult (about 1.75 m tall). The same (immutable) object for every call
         with one dtype: a tracker asks for it every frame until its shape is estimated."""
-        dtype = jax.dtypes.canonicalize_dtype(dtype or float)
-        shape = _DEFAULT_SHAPES.get(dtype)
-        if shape is None:
-            shape = _DEFAULT_SHAPES[dtype] = BodyShape.create(dtype=dtype)
-        return shape
+        return _default_shape(jax.dtypes.canonicalize_dtype(dtype or float))
 
     @staticmethod
     def create(dtype=None, **overrides: float) -> BodyShape:
@@ -188,8 +184,12 @@ _DEFAULTS = {
     "shin_radius": 0.05,
     "head_radius": 0.095,
 }
-#: ``BodyShape.default`` per dtype, made at its first call (no JAX work at import).
-_DEFAULT_SHAPES: dict = {}
+
+
+@functools.cache
+def _default_shape(dtype) -> BodyShape:
+    """``BodyShape.default`` per dtype, made at its first call (no JAX work at import)."""
+    return BodyShape.create(dtype=dtype)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -780,6 +780,7 @@ class Tracker:
                 f32((C, *intr.shape)), f32((C, 18, 2)), f32((C, 18)),
             )  # fmt: skip
 
+        @cache  # for the first frame's programs and the smoother's: traced once
         def landmarks():  # their structure: tracing the lifting (~0.1 s), off the step's path
             return jax.eval_shape(
                 partial(tracker_landmarks, self.config), shape, intr, depth, kp, conf
