@@ -40,6 +40,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --quick             # 3 clips
     python benchmarks/motion.py --motions real --clips 12   # real motion capture, ~30 min
     python benchmarks/motion.py --online-only ...   # LVM and the online default only
+    python benchmarks/motion.py --offline-only ...  # LVM and the offline default only
 """
 
 from __future__ import annotations
@@ -66,6 +67,7 @@ ROWS = (
     f"MHT_h online L={LAG}", "MHT_h online L=0", f"MHT_h online L={LAG}, kp shape",
     f"MHT_h online L={LAG}, no L/R", f"MHT_h online L={LAG}, L/R as read",
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
+    "MHT_h offline, duplicates kept",
 )  # fmt: skip
 
 
@@ -80,11 +82,22 @@ ONLINE_ROWS = (
 )  # fmt: skip
 
 
+#: ``--offline-only``: LVM, the offline default and the offline default before 2026-11-27's
+#: late evening (detections that jumped onto another keypoint fitted as given).
+OFFLINE_ROWS = ("LVM", "MHT_h offline", "MHT_h offline, duplicates kept")
+
+
 def run_clip(
-    seed: int, motion: str, occlusion: int, frames: int, variety: str, online_only: bool = False
+    seed: int,
+    motion: str,
+    occlusion: int,
+    frames: int,
+    variety: str,
+    online_only: bool = False,
+    offline_only: bool = False,
 ) -> dict:
-    """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`) and the costs
-    measured on it."""
+    """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
+    ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
     seq = pt.synth.generate(
         seed, motion=motion, n_frames=frames, fps=30.0, occlusion_level=occlusion,
         width=320, height=240, with_rgb=False, variety=variety,
@@ -93,6 +106,8 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
+    if offline_only:
+        return {"truth": seq.joints3d, "est": out, "cost": _offline_default(seq, args, out)}
     cost = {} if online_only else _offline_rows(seq, args, out, frames)
     for lag in (LAG, 0):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
@@ -144,15 +159,29 @@ def _offline_rows(seq, args, out: dict, frames: int) -> dict:
     out["MHT_h per-frame"] = off.per_frame_keypoints3d
     out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
     out["MHT_h offline, no L/R"] = off.keypoints3d
+    cost = _offline_default(seq, args, out)
+    cost.update({"step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames})
+    return cost
+
+
+def _offline_default(seq, args, out: dict) -> dict:
+    """The offline default's row into ``out`` (and, the default before 2026-11-27's late
+    evening, the row with detections on another keypoint fitted as given); its costs."""
+    frames = len(seq.depth)
+    out["MHT_h offline, duplicates kept"] = pt.track(
+        *args, seq.intrinsics, duplicates=None
+    ).keypoints3d
     lr_tr = pt.Tracker(seq.intrinsics, mode="offline")  # the default
-    out["MHT_h offline"] = lr_tr.run(*args).keypoints3d
+    res = lr_tr.run(*args)
+    out["MHT_h offline"] = res.keypoints3d
     return {
-        "step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames,
-        "refine_s": tr.refine_s, "sides_ms": lr_tr.sides_s * 1000 / frames,
+        "step_ms": res.ms_per_frame, "offline_ms": lr_tr.smooth_s * 1000 / frames,
+        "refine_s": lr_tr.refine_s, "sides_ms": lr_tr.sides_s * 1000 / frames,
         # The default's arbitration tracks each exchanged stretch twice: extra steps per frame.
         "retracked_share": _tracked_twice(lr_tr) / frames,
         "spans": len(lr_tr.side_spans),
         "spans_exchanged": int(sum(s[-1] for s in lr_tr.side_spans)),
+        "dropped": lr_tr.duplicates_dropped,
     }  # fmt: skip
 
 
@@ -177,9 +206,16 @@ def main() -> int:
         "--online-only", action="store_true",
         help="LVM and the online default at lags 3 and 0 only (a fifth of the time)",
     )  # fmt: skip
+    ap.add_argument(
+        "--offline-only", action="store_true",
+        help="LVM, the offline default and the offline default fitting detections on another "
+        "keypoint as given",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
-    names = ONLINE_ROWS if a.online_only else ROWS
+    if a.online_only and a.offline_only:
+        ap.error("--online-only and --offline-only exclude each other")
+    names = ONLINE_ROWS if a.online_only else OFFLINE_ROWS if a.offline_only else ROWS
     clips = 3 if a.quick else a.clips
     motions = MOTIONS
     if a.motions == "real":
@@ -198,7 +234,7 @@ def main() -> int:
         seed = REPORT_SEEDS[a.start + i]
         motion = motions[(a.start + i) % len(motions)]
         for occ in (0, 2):
-            r = run_clip(seed, motion, occ, a.frames, a.variety, a.online_only)
+            r = run_clip(seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only)
             gt = r["truth"]
             rows = {}
             for name in names:
@@ -245,14 +281,14 @@ def main() -> int:
                 "jitter_mm": float(np.mean(jit)) if jit else None,
             }
     costs = [c["cost"] for c in per_clip]
-    cost = {
+    cost = {} if a.offline_only else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
         "online_retracked_share_mean": float(np.mean([c["online_retracked_share"] for c in costs])),
         "online_retracked_share_max": float(np.max([c["online_retracked_share"] for c in costs])),
         # Online: the body shape refinement, once, after 60 tracked frames (a pause of update()).
         "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
-    }
+    }  # fmt: skip
     if not a.online_only:
         step = float(np.median([c["step_ms"] for c in costs]))
         cost.update({
@@ -276,6 +312,9 @@ def main() -> int:
             + cost["offline_ms_per_frame"]
             + cost["sides_ms_per_frame"]
         ) / step
+    if a.offline_only:
+        cost["detections_dropped"] = int(np.sum([c["dropped"] for c in costs]))
+    elif not a.online_only:
         cost["online_total_over_step"] = (
             (cost["online_step_ms"] + cost["online_ms_per_frame"])
             * (1 + cost["online_retracked_share_mean"])
@@ -296,7 +335,14 @@ def main() -> int:
             )
     if truth_jit:
         print(f"\ntruth's own jitter on the idle clips: {np.mean(truth_jit):.1f} mm/frame")
-    if a.online_only:
+    if a.offline_only:
+        print(
+            f"\ncost per frame: step {step:.1f} ms; offline smoother "
+            f"+{cost['offline_ms_per_frame']:.1f} ms median; left/right pre-pass "
+            f"+{cost['sides_ms_per_frame']:.1f} ms, {100 * cost['retracked_share_mean']:.0f} % "
+            f"of the frames tracked twice; {cost['detections_dropped']} detections dropped"
+        )
+    elif a.online_only:
         print(
             f"\ncost per frame: online step {cost['online_step_ms']:.1f} ms, online model "
             f"+{cost['online_ms_per_frame']:.1f} ms, "
@@ -323,6 +369,7 @@ def main() -> int:
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
+        "offline_only": a.offline_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -506,8 +506,9 @@ class Tracker:
     **A detection that jumped onto another keypoint** (an ankle reported on the neck for a
     dozen frames, a wrist on the other wrist) is dropped before the labelling and the fit
     while it stays away from where it was last seen (``duplicates``,
-    :class:`DuplicateSettings`; ``"auto"``, the default: on online, off offline and
-    per-frame; :attr:`duplicates_dropped` counts them).
+    :class:`DuplicateSettings`; ``"auto"``, the default: on offline, where the left/right
+    pre-pass withholds it too, and online; off per-frame, the paper's tracker;
+    :attr:`duplicates_dropped` counts them).
 
     **Frames in chunks.** Offline and per-frame, :meth:`run` runs the steps of ``chunk``
     frames (default :data:`RUN_CHUNK`, 16) as one compiled call, the track-loss decisions
@@ -566,7 +567,7 @@ class Tracker:
             )
         self.sides: SideSettings | None = sides
         if isinstance(duplicates, str) and duplicates == "auto":
-            duplicates = DuplicateSettings() if mode == "online" else None
+            duplicates = None if mode == "per-frame" else DuplicateSettings()
         if duplicates is not None and not isinstance(duplicates, DuplicateSettings):
             raise TypeError(
                 "Tracker: duplicates must be 'auto', posetrack.DuplicateSettings or None, got "
@@ -1750,11 +1751,21 @@ class Tracker:
         ``(person (T,), exchanged (T, groups))``, the person as a pre-pass follows them. A frame
         where the tracker follows another detection falls back to the forward pass."""
         persons, frames = [], []
+        # The pass reads what the tracking pass will fit: with ``duplicates``, a detection
+        # that jumped onto another keypoint is withheld here too (its own causal filter).
+        dups = (
+            None if self.duplicates is None
+            else DuplicateFilter(float(self.intrinsics.fx), self.duplicates)
+        )  # fmt: skip
         for _, cands, p in self._followed(depths, keypoints2d, confidence, len(depths)):
             persons.append(p)
-            frames.append(
-                None if p < 0 else (*cands.person(p), cands.points3d[p], cands.has_depth[p])
-            )
+            if p < 0:
+                frames.append(None)
+                continue
+            kp, conf = cands.person(p)
+            if dups is not None:
+                conf, _ = dups.update(kp, conf, cands.points3d[p], cands.has_depth[p])
+            frames.append((kp, conf, cands.points3d[p], cands.has_depth[p]))
         exchanged = two_sided_exchanged(frames, float(self.intrinsics.fx), self.sides)
         return np.asarray(persons, np.int64), exchanged
 
@@ -1823,7 +1834,7 @@ def track(
     judged by the depth before it is published; ``None``: off); ``chunk``: frames per compiled
     call (:data:`RUN_CHUNK`; 1: one call per frame, the same poses); ``duplicates`` drops
     detections that jumped onto another keypoint (:class:`DuplicateSettings`; ``"auto"``:
-    online only)."""
+    offline and online, not per-frame)."""
     return Tracker(
         intrinsics, config, shape=shape, seed=seed, person=person, follow=follow, mode=mode,
         lag=lag, motion=motion, fps=fps, sides=sides, refine=refine, chunk=chunk,

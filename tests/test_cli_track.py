@@ -263,6 +263,35 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
     assert summary["sides_exchanged"] is None and "undone" not in stdout
 
 
+def test_a_keypoint_on_another_is_dropped_unless_kept(rec, tmp_path):
+    # Frames 4-11: the left ankle reported on the neck (a detector's wrong peak). Offline
+    # (the default) it is withheld while it stays there; --keep-duplicates fits it as given.
+    src = rec / "keypoints"
+    moved = tmp_path / "keypoints"
+    shutil.copytree(src, moved)
+    for f in sorted(moved.glob("*.json"))[4:12]:
+        doc = json.loads(f.read_text())
+        flat = doc["people"][0]["pose_keypoints_2d"]
+        flat[3 * 13 : 3 * 13 + 2] = [flat[3] + 2.0, flat[4] - 1.0]  # left ankle (13) on neck (1)
+        f.write_text(json.dumps(doc))
+    runs = {}
+    for name, extra in (("default", ()), ("kept", ("--keep-duplicates",))):
+        args = track_args(rec, tmp_path / name, "--no-video", "--no-refine-shape", *extra)
+        args[args.index("--keypoints") + 1] = moved
+        code, stdout, stderr = run_cli(*args)
+        assert code == 0, stderr
+        runs[name] = (json.loads((tmp_path / name / "summary.json").read_text()), stdout)
+    summary, stdout = runs["default"]
+    assert summary["inputs"]["drop_duplicates"] is True
+    # The 8 of the ankle, and (this clip's detector outliers) 10 of a nose back from a
+    # two-frame outlier beside the eyes (DuplicateSettings.settle).
+    assert summary["detections_dropped"] == 18
+    assert "keypoint detections dropped (jumped onto another keypoint): 18" in stdout
+    summary, stdout = runs["kept"]
+    assert summary["inputs"]["drop_duplicates"] is False and summary["detections_dropped"] == 0
+    assert "detections dropped" not in stdout
+
+
 # -- tracking over time -----------------------------------------------------------------------
 
 

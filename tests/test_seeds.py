@@ -72,3 +72,13 @@ def test_tune_refuses_every_seed_outside_the_tuning_range(seeds):
 def test_tuning_clips_are_not_the_reported_clips():
     accuracy, tune = load("accuracy"), load("tune")
     assert not set(tune.REAL) & set(accuracy.REAL)
+
+
+def test_the_duplicates_decision_runs_on_tuning_seeds_only(seeds):
+    decide = load("decide_duplicates")
+    used = [seed for _, seed, _, _ in decide.clips()]
+    assert len(used) == 20 and len(set(used)) == 20
+    assert all(s in seeds.TUNING_SEEDS for s in used), used
+    assert decide.settings("kept") is None and decide.settings("settle5").settle == 5
+    with pytest.raises(SystemExit, match="settleN"):
+        decide.settings("settle")

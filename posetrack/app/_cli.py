@@ -208,7 +208,7 @@ def _track(args) -> int:
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=_lag(args), fps=30.0 if fps is None else fps,
         sides={None: "auto", True: SideSettings(), False: None}[args.fix_sides],
-        refine=_refine(args),
+        refine=_refine(args), duplicates=None if args.keep_duplicates else "auto",
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -245,6 +245,7 @@ def _track(args) -> int:
             "mode": mode,
             "lag": _lag(args),
             "fix_sides": tracker.sides is not None,
+            "drop_duplicates": tracker.duplicates is not None,
             "refine_shape": not args.no_refine_shape,
         },
         "notes": notes,
@@ -261,7 +262,8 @@ def _track(args) -> int:
             {"start": a, "stop": b, "delta_detected": da, "delta_exchanged": dx, "kept": k}
             for a, b, da, dx, k in tracker.side_spans
         ],
-        # Keypoint detections dropped because they jumped onto another keypoint (online).
+        # Keypoint detections dropped because they jumped onto another keypoint (offline and
+        # online; --keep-duplicates: 0).
         "detections_dropped": tracker.duplicates_dropped,
         "shape_refinement": _shape_summary(tracker),
         "timing": {
@@ -670,6 +672,11 @@ def build_parser() -> argparse.ArgumentParser:
     sides.add_argument(
         "--no-fix-sides", dest="fix_sides", action="store_const", const=False,
         help="take the detector's left/right labels as they come",
+    )  # fmt: skip
+    t.add_argument(
+        "--keep-duplicates", action="store_true",
+        help="fit a keypoint detection that jumped onto another keypoint as given (default: "
+        "dropped while it stays there, offline and with --online; never with --per-frame)",
     )  # fmt: skip
     t.add_argument(
         "--frame", choices=("camera", "floor"), default="camera",

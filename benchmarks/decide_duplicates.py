@@ -1,0 +1,84 @@
+"""Tuning-seed decision runs for ``DuplicateSettings`` (issue 12): D with and without the
+filter of detections that jumped onto another keypoint, per clip and tracker seed.
+
+Runs the 40 tuning clips of the decisions recorded in benchmarks/README.md (wide real motion
+seeds 150-157 with ``tune.REAL``, wide procedural 144-149 and standard 136-141 with
+``tune.PROCEDURAL`` in order; occlusion 0 and 2; 120 frames at 30 fps, 320x240), each with
+the tracker seeds given, and appends one JSON line per clip and seed: D (mm, body joints),
+coverage, swapped-limb frames, acceleration error and the detections dropped, per variant.
+Tuning seeds only: never point it at ``REPORT_SEEDS``.
+
+    python benchmarks/decide_duplicates.py OUT.jsonl --variants kept,settle1 --mode offline
+    python benchmarks/decide_duplicates.py OUT.jsonl --part 0 --parts 2 ...  # two processes
+
+Variants: ``kept`` (``duplicates=None``) and ``settleN`` (``DuplicateSettings(settle=N)``;
+``settle1`` is the default filter). ~25 s per run on 2 CPU cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from seeds import TUNING_SEEDS
+from tune import PROCEDURAL, REAL
+
+import posetrack as pt
+
+
+def clips() -> list[tuple[str, int, str, str]]:
+    """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions)."""
+    out = [("wide real", s, REAL[i % len(REAL)], "wide") for i, s in enumerate(range(150, 158))]
+    out += [("wide procedural", s, PROCEDURAL[i], "wide") for i, s in enumerate(range(144, 150))]
+    out += [("standard", s, PROCEDURAL[i], "standard") for i, s in enumerate(range(136, 142))]
+    assert all(c[1] in TUNING_SEEDS for c in out)
+    return out
+
+
+def settings(variant: str) -> pt.DuplicateSettings | None:
+    if variant == "kept":
+        return None
+    if variant.startswith("settle") and variant[6:].isdigit():
+        return pt.DuplicateSettings(settle=int(variant[6:]))
+    raise SystemExit(f"error: --variants: {variant!r} is neither 'kept' nor 'settleN'")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out", help="JSON lines, appended to")
+    ap.add_argument("--variants", default="kept,settle1")
+    ap.add_argument("--mode", choices=("offline", "online"), default="offline")
+    ap.add_argument("--tracker-seeds", default="0,1")
+    ap.add_argument("--part", type=int, default=0)
+    ap.add_argument("--parts", type=int, default=1)
+    a = ap.parse_args()
+    variants = {v: settings(v) for v in a.variants.split(",")}
+    seeds = [int(s) for s in a.tracker_seeds.split(",")]
+    todo = [(c, occ, ts) for c in clips() for occ in (0, 2) for ts in seeds][a.part :: a.parts]
+    with open(a.out, "a") as f:
+        for (group, seed, motion, variety), occ, ts in todo:
+            seq = pt.synth.generate(
+                seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
+                height=240, with_rgb=False, variety=variety,
+            )  # fmt: skip
+            rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
+            for name, dup in variants.items():
+                t0 = time.perf_counter()
+                tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, duplicates=dup)
+                est = tr.run(seq.depth, seq.keypoints2d, seq.confidence).keypoints3d
+                acc = pt.accuracy(est, seq.joints3d)
+                rec[name] = {
+                    "D": acc.mean_mm, "cov": acc.coverage,
+                    "swaps": pt.swapped_limb_frames(est, seq.joints3d),
+                    "accel": float(pt.acceleration_error(est, seq.joints3d)),
+                    "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
+                }  # fmt: skip
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            print(json.dumps(rec), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
