@@ -226,29 +226,40 @@ def test_summary_and_printout(cli, poses):
     assert "body shape refined against the depth of" in cli.stdout
 
 
-def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
-    # Arms exchanged by the detector in frames 4-11: undone by default (offline, the depth
-    # agreeing) and with the flag, kept with --no-fix-sides.
-    src = rec / "keypoints"
-    swapped = tmp_path / "keypoints"
-    shutil.copytree(src, swapped)
-    for f in sorted(swapped.glob("*.json"))[4:12]:
+def edited_runs(rec, tmp_path, edit, variants) -> dict:
+    """Frames 4-11 of the recording's keypoint files edited by ``edit(kp)`` (a list of 18
+    ``[x, y, confidence]``, changed in place), then tracked once per ``name: extra flags`` of
+    ``variants`` (no video): ``{name: (summary, stdout)}``."""
+    edited = tmp_path / "keypoints"
+    shutil.copytree(rec / "keypoints", edited)
+    for f in sorted(edited.glob("*.json"))[4:12]:
         doc = json.loads(f.read_text())
         flat = doc["people"][0]["pose_keypoints_2d"]
         kp = [flat[3 * i : 3 * i + 3] for i in range(len(flat) // 3)]
-        for a, b in posetrack.SIDE_GROUPS["arms"]:
-            kp[a], kp[b] = kp[b], kp[a]
+        edit(kp)
         doc["people"][0]["pose_keypoints_2d"] = [v for k in kp for v in k]
         f.write_text(json.dumps(doc))
     runs = {}
-    for name, extra in (
-        ("fix", ("--fix-sides", "--no-refine-shape")), ("default", ()), ("off", ("--no-fix-sides",))
-    ):
+    for name, extra in variants.items():
         args = track_args(rec, tmp_path / name, "--no-video", *extra)
-        args[args.index("--keypoints") + 1] = swapped
+        args[args.index("--keypoints") + 1] = edited
         code, stdout, stderr = run_cli(*args)
         assert code == 0, stderr
         runs[name] = (json.loads((tmp_path / name / "summary.json").read_text()), stdout)
+    return runs
+
+
+def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
+    # Arms exchanged by the detector in frames 4-11: undone by default (offline, the depth
+    # agreeing) and with the flag, kept with --no-fix-sides.
+    def swap_arms(kp):
+        for a, b in posetrack.SIDE_GROUPS["arms"]:
+            kp[a], kp[b] = kp[b], kp[a]
+
+    variants = {
+        "fix": ("--fix-sides", "--no-refine-shape"), "default": (), "off": ("--no-fix-sides",)
+    }  # fmt: skip
+    runs = edited_runs(rec, tmp_path, swap_arms, variants)
     summary, stdout = runs["fix"]
     assert summary["sides_exchanged"]["arms"] >= 6 and summary["sides_exchanged"]["legs"] == 0
     assert "left/right swaps of the detector undone (frames): arms" in stdout
@@ -266,21 +277,13 @@ def test_fix_sides_undoes_a_detector_arm_swap(rec, tmp_path):
 def test_a_keypoint_on_another_is_dropped_unless_kept(rec, tmp_path):
     # Frames 4-11: the left ankle reported on the neck (a detector's wrong peak). Offline
     # (the default) it is withheld while it stays there; --keep-duplicates fits it as given.
-    src = rec / "keypoints"
-    moved = tmp_path / "keypoints"
-    shutil.copytree(src, moved)
-    for f in sorted(moved.glob("*.json"))[4:12]:
-        doc = json.loads(f.read_text())
-        flat = doc["people"][0]["pose_keypoints_2d"]
-        flat[3 * 13 : 3 * 13 + 2] = [flat[3] + 2.0, flat[4] - 1.0]  # left ankle (13) on neck (1)
-        f.write_text(json.dumps(doc))
-    runs = {}
-    for name, extra in (("default", ()), ("kept", ("--keep-duplicates",))):
-        args = track_args(rec, tmp_path / name, "--no-video", "--no-refine-shape", *extra)
-        args[args.index("--keypoints") + 1] = moved
-        code, stdout, stderr = run_cli(*args)
-        assert code == 0, stderr
-        runs[name] = (json.loads((tmp_path / name / "summary.json").read_text()), stdout)
+    def ankle_on_neck(kp):
+        kp[13][:2] = [kp[1][0] + 2.0, kp[1][1] - 1.0]  # left ankle (13) on the neck (1)
+
+    variants = {
+        "default": ("--no-refine-shape",), "kept": ("--no-refine-shape", "--keep-duplicates")
+    }  # fmt: skip
+    runs = edited_runs(rec, tmp_path, ankle_on_neck, variants)
     summary, stdout = runs["default"]
     assert summary["inputs"]["drop_duplicates"] is True
     # The 8 of the ankle, and (this clip's detector outliers) 10 of a nose back from a
