@@ -708,10 +708,7 @@ class Tracker:
         self._labeller = (
             None if self.sides is None else SideLabeller(float(self.intrinsics.fx), self.sides)
         )
-        self._duplicate_filter = (
-            None if self.duplicates is None
-            else DuplicateFilter(float(self.intrinsics.fx), self.duplicates)
-        )  # fmt: skip
+        self._duplicate_filter = self._new_duplicate_filter()
         self.exchanged = np.zeros(0 if self.sides is None else len(self.sides.groups), bool)
         """Which :attr:`sides` groups the last frame's detections had exchanged."""
         # Offline (run): the pre-pass's followed person and labelling per frame, and the frame
@@ -934,6 +931,12 @@ class Tracker:
             if mask.any():
                 depth_m = np.where(mask, np.float32(0), depth_m)
         return p, cands, depth_m, kp, conf
+
+    def _new_duplicate_filter(self) -> DuplicateFilter | None:
+        """A fresh filter of :attr:`duplicates` (None without it)."""
+        if self.duplicates is None:
+            return None
+        return DuplicateFilter(float(self.intrinsics.fx), self.duplicates)
 
     def _others_only(self, p: int, cands: Candidates) -> bool:
         """The followed person (chosen before) was not found but others are usable in view:
@@ -1753,10 +1756,7 @@ class Tracker:
         persons, frames = [], []
         # The pass reads what the tracking pass will fit: with ``duplicates``, a detection
         # that jumped onto another keypoint is withheld here too (its own causal filter).
-        dups = (
-            None if self.duplicates is None
-            else DuplicateFilter(float(self.intrinsics.fx), self.duplicates)
-        )  # fmt: skip
+        dups = self._new_duplicate_filter()
         for _, cands, p in self._followed(depths, keypoints2d, confidence, len(depths)):
             persons.append(p)
             if p < 0:

@@ -383,16 +383,13 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
 
 def first_dropped_detection(clip) -> int:
     """The first frame where the offline default's duplicate filter withholds a detection
-    (replayed on the host as the tracker does; ``len(clip.depth)`` if none)."""
-    from posetrack._associate import lift_candidates
-
-    dups = pt.DuplicateFilter(float(clip.intrinsics.fx))
-    for t, depth in enumerate(clip.depth):
-        cands = lift_candidates(
-            depth.astype(np.float32) / 1000.0, clip.keypoints2d[t][None],
-            clip.confidence[t][None], clip.intrinsics,
-        )  # fmt: skip
-        _, dropped = dups.update(*cands.person(0), cands.points3d[0], cands.has_depth[0])
+    (replayed on the host on the detections the tracker follows; ``len(clip.depth)`` if
+    none)."""
+    tracker = pt.Tracker(clip.intrinsics)
+    dups = tracker._new_duplicate_filter()
+    args = (clip.depth, clip.keypoints2d, clip.confidence, len(clip.depth))
+    for t, (_, cands, p) in enumerate(tracker._followed(*args)):
+        _, dropped = dups.update(*cands.person(p), cands.points3d[p], cands.has_depth[p])
         if dropped.any():
             return t
     return len(clip.depth)
