@@ -74,11 +74,14 @@ def test_tuning_clips_are_not_the_reported_clips():
     assert not set(tune.REAL) & set(accuracy.REAL)
 
 
-def test_the_duplicates_decision_runs_on_tuning_seeds_only(seeds):
-    decide = load("decide_duplicates")
+def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
+    decide = load("decide")
     used = [seed for _, seed, _, _ in decide.clips()]
     assert len(used) == 20 and len(set(used)) == 20
     assert all(s in seeds.TUNING_SEEDS for s in used), used
-    assert decide.settings("kept") is None and decide.settings("settle5").settle == 5
-    with pytest.raises(SystemExit, match="settleN"):
-        decide.settings("settle")
+    assert decide.settings("kept") == {"duplicates": None}
+    assert decide.settings("settle5")["duplicates"].settle == 5
+    assert decide.settings("sides:arms+torso")["sides"].groups == ("arms", "torso")
+    for bad in ("settle", "sides:arms+elbows"):
+        with pytest.raises(SystemExit, match="settleN|groups"):
+            decide.settings(bad)

@@ -1,5 +1,7 @@
-"""Tuning-seed decision runs for ``DuplicateSettings`` (issue 12): D with and without the
-filter of detections that jumped onto another keypoint, per clip and tracker seed.
+"""Tuning-seed decision runs (issue 12): D of tracker variants per clip and tracker seed.
+
+Variants differ in one setting: the filter of detections that jumped onto another keypoint
+(``DuplicateSettings``) or the left/right groups relabelled (``SideSettings.groups``).
 
 Runs the 40 tuning clips of the decisions recorded in benchmarks/README.md (wide real motion
 seeds 150-157 with ``tune.REAL``, wide procedural 144-149 and standard 136-141 with
@@ -8,11 +10,14 @@ the tracker seeds given, and appends one JSON line per clip and seed: D (mm, bod
 coverage, swapped-limb frames, acceleration error and the detections dropped, per variant.
 Tuning seeds only: never point it at ``REPORT_SEEDS``.
 
-    python benchmarks/decide_duplicates.py OUT.jsonl --variants kept,settle1 --mode offline
-    python benchmarks/decide_duplicates.py OUT.jsonl --part 0 --parts 2 ...  # two processes
+    python benchmarks/decide.py OUT.jsonl --variants kept,settle1 --mode offline
+    python benchmarks/decide.py OUT.jsonl --variants sides:arms+legs,sides:arms+legs+torso
+    python benchmarks/decide.py OUT.jsonl --part 0 --parts 2 ...  # two processes
 
-Variants: ``kept`` (``duplicates=None``) and ``settleN`` (``DuplicateSettings(settle=N)``;
-``settle1`` is the default filter). ~25 s per run on 2 CPU cores.
+Variants: ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
+``settle1`` is the default filter), ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
+names from ``posetrack.SIDE_GROUPS``); every other setting is the mode's default. ~25-40 s
+per run on 2 CPU cores.
 """
 
 from __future__ import annotations
@@ -36,12 +41,21 @@ def clips() -> list[tuple[str, int, str, str]]:
     return out
 
 
-def settings(variant: str) -> pt.DuplicateSettings | None:
+def settings(variant: str) -> dict:
+    """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
     if variant == "kept":
-        return None
+        return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
-        return pt.DuplicateSettings(settle=int(variant[6:]))
-    raise SystemExit(f"error: --variants: {variant!r} is neither 'kept' nor 'settleN'")
+        return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
+    if variant.startswith("sides:"):
+        groups = tuple(variant[6:].split("+"))
+        try:
+            return {"sides": pt.SideSettings(groups=groups)}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    raise SystemExit(
+        f"error: --variants: {variant!r} is neither 'kept', 'settleN' nor 'sides:G+G...'"
+    )
 
 
 def main() -> int:
@@ -63,9 +77,9 @@ def main() -> int:
                 height=240, with_rgb=False, variety=variety,
             )  # fmt: skip
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
-            for name, dup in variants.items():
+            for name, kwargs in variants.items():
                 t0 = time.perf_counter()
-                tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, duplicates=dup)
+                tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, **kwargs)
                 est = tr.run(seq.depth, seq.keypoints2d, seq.confidence).keypoints3d
                 acc = pt.accuracy(est, seq.joints3d)
                 rec[name] = {
