@@ -85,6 +85,19 @@ whatever the depth says: a detector outlier's jump reads as a one-frame exchange
 wide tuning clips a Delta sum a hair lower kept such readings (with the rule the mean of
 the four wide D's fell by 1.6 mm; benchmarks/README.md).
 
+**Online the torso is relabelled too** (:meth:`SideSettings.for_mode`): a detector that
+reads the person as facing the other way exchanges every pair at once, shoulders and hips
+included (the wide generator's whole-body swaps). Undone limb by limb, the torso stays
+exchanged and turns the model round (on a tuning clip the shoulders 300 mm and the wrists 600
+mm off for 19 frames). With the depth judging each exchange, relabelling the torso online
+brought the mean D of 40 tuning clips from 55.84 to 53.02 mm, no group worse (wide real
+motion clean 49.2 -> 44.5, occluded 85.2 -> 75.8); offline it failed its rule (mean 48.06 ->
+47.66 mm, but wide real occluded 70.6 -> 73.0, all from one clip whose track is lost for a
+while either way), so offline stays arms and legs; the face as well failed both
+(benchmarks/README.md, "Relabel the torso and the face too"). The torso and the face were
+first left out on label counts alone, before the depth arbitrated (standard tuning clips:
+torso 0 -> 10 wrong frames, face 17 -> 88).
+
 The tracker relabels by default offline and online (``sides="auto"``; ``sides=None``,
 ``posetrack track --no-fix-sides`` turn it off); per-frame (the paper's tracker) it does not.
 
@@ -122,7 +135,8 @@ class SideSettings:
     """
 
     groups: tuple[str, ...] = ("arms", "legs")
-    """Which :data:`SIDE_GROUPS` are relabelled."""
+    """Which :data:`SIDE_GROUPS` are relabelled. The online tracker's default adds the torso
+    (:meth:`for_mode`)."""
     switch_cost: float = 0.01
     """Cost (m) per frame of the "exchanged" labelling. A swap of n frames is undone while
     n x switch_cost is below the two jumps it saves (sides 0.3 m apart: up to ~60 frames)."""
@@ -168,6 +182,20 @@ class SideSettings:
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
     forward pass holds after the swap ended (a side hidden for a while) does not last."""
+
+    @classmethod
+    def for_mode(cls, mode: str, **changes) -> SideSettings:
+        """The :class:`Tracker`'s default for a mode (``sides="auto"``): arms and legs
+        offline and per-frame, arms, legs and torso online (decided on tuning clips; see the
+        module docstring). ``changes`` override fields, e.g. ``arbitrate_margin=0.1``."""
+        if mode not in ("offline", "online", "per-frame"):
+            raise ValueError(
+                f"SideSettings.for_mode: mode must be 'offline', 'online' or 'per-frame', "
+                f"got {mode!r}"
+            )
+        if mode == "online":
+            changes = {"groups": ("arms", "legs", "torso"), **changes}
+        return cls(**changes)
 
     def __post_init__(self):
         if not isinstance(self.arbitrate, bool):

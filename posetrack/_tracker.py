@@ -491,8 +491,9 @@ class Tracker:
 
     **Left/right swaps of the detector** are undone before each frame is fitted
     (``sides``, :class:`SideSettings`; ``"auto"``, the default: on offline and online, off
-    per-frame): a group of keypoints (arms, legs) whose left and right sides
-    both jump and later jump back is read exchanged while that is the continuous reading.
+    per-frame): a group of keypoints (arms, legs; online the torso too,
+    :meth:`SideSettings.for_mode`) whose left and right sides both jump and later jump back
+    is read exchanged while that is the continuous reading.
     Offline a pre-pass reads the whole recording forwards and backwards
     (:func:`two_sided_exchanged`), and the depth arbitrates: each stretch read exchanged is
     tracked twice from the same state, exchanged and as detected, and the exchange is kept
@@ -560,7 +561,7 @@ class Tracker:
         lag = int(lag) if mode == "online" else 0
         self.mode, self.lag, self.motion, self.fps = mode, lag, motion, float(fps)
         if isinstance(sides, str) and sides == "auto":
-            sides = None if mode == "per-frame" else SideSettings()
+            sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):
             raise TypeError(
                 f"Tracker: sides must be 'auto', posetrack.SideSettings or None, got {sides!r}"

@@ -207,7 +207,7 @@ def _track(args) -> int:
     tracker = Tracker(
         rec.intrinsics, config, seed=args.seed, person=args.person, mode=mode,
         lag=_lag(args), fps=30.0 if fps is None else fps,
-        sides={None: "auto", True: SideSettings(), False: None}[args.fix_sides],
+        sides={None: "auto", True: SideSettings.for_mode(mode), False: None}[args.fix_sides],
         refine=_refine(args), duplicates=None if args.keep_duplicates else "auto",
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
@@ -664,7 +664,8 @@ def build_parser() -> argparse.ArgumentParser:
     sides = t.add_mutually_exclusive_group()
     sides.add_argument(
         "--fix-sides", dest="fix_sides", action="store_const", const=True, default=None,
-        help="undo the detector's left/right swaps of the arms and legs before fitting. "
+        help="undo the detector's left/right swaps of the arms and legs (with --online the "
+        "torso's too) before fitting. "
         "Default: on offline (read from both directions, each exchange kept only where the "
         "depth agrees) and with --online (read forwards; the depth judges each exchange "
         "before its poses are published), off with --per-frame",
