@@ -8,6 +8,7 @@ import posetrack as pt
 FX = 300.0
 ARMS = pt.SIDE_GROUPS["arms"]
 LEGS = pt.SIDE_GROUPS["legs"]
+TORSO = pt.SIDE_GROUPS["torso"]
 
 
 def _walk(T: int = 80, seed: int = 0):
@@ -105,6 +106,39 @@ def test_a_swap_longer_than_the_jumps_are_worth_is_left_alone():
     _, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings(switch_cost=0.02))
     assert ex[20:40, 0].all()
     assert not ex[-20:, 0].any()
+
+
+def test_a_whole_body_swap_is_undone_only_with_the_torso_group():
+    # A detector reading the person as facing the other way exchanges every pair at once.
+    kp, conf, p3, has = _walk()
+    sw = np.arange(25, 40)
+    bad_kp, bad_conf = _swap(kp, conf, sw, ARMS + LEGS + TORSO)
+    online = pt.SideSettings.for_mode("online")
+    out_kp, out_conf, ex = _run(bad_kp, bad_conf, p3, has, online)
+    assert online.groups == ("arms", "legs", "torso")
+    for g in range(3):
+        np.testing.assert_array_equal(np.flatnonzero(ex[:, g]), sw)
+    np.testing.assert_array_equal(out_kp, kp)
+    np.testing.assert_array_equal(out_conf, conf)
+    # Arms and legs alone (the offline default): the shoulders and hips stay exchanged.
+    out_kp, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings.for_mode("offline"))
+    np.testing.assert_array_equal(out_kp[:, [3, 4, 6, 7, 9, 10, 12, 13]],
+                                  kp[:, [3, 4, 6, 7, 9, 10, 12, 13]])  # fmt: skip
+    np.testing.assert_array_equal(out_kp[sw][:, [2, 5, 8, 11]], kp[sw][:, [5, 2, 11, 8]])
+
+
+def test_for_mode_gives_the_trackers_defaults():
+    assert pt.SideSettings.for_mode("offline") == pt.SideSettings()
+    assert pt.SideSettings.for_mode("per-frame") == pt.SideSettings()
+    tuned = pt.SideSettings.for_mode("online", switch_cost=0.02)
+    assert tuned.groups == ("arms", "legs", "torso") and tuned.switch_cost == 0.02
+    assert pt.SideSettings.for_mode("online", groups=("arms",)).groups == ("arms",)
+    with pytest.raises(ValueError, match="mode must be"):
+        pt.SideSettings.for_mode("live")
+    intr = pt.Intrinsics.create(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
+    assert pt.Tracker(intr, mode="online").sides == pt.SideSettings.for_mode("online")
+    assert pt.Tracker(intr, mode="offline").sides == pt.SideSettings()
+    assert pt.Tracker(intr, mode="per-frame").sides is None
 
 
 def test_settings_and_labeller_reject_bad_values():
