@@ -16,7 +16,8 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
 
 Variants: ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
-names from ``posetrack.SIDE_GROUPS``); every other setting is the mode's default. ~25-40 s
+names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
+every other setting is the mode's default. ~25-40 s
 per run on 2 CPU cores.
 """
 
@@ -48,9 +49,10 @@ def settings(variant: str) -> dict:
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
     if variant.startswith("sides:"):
-        groups = tuple(variant[6:].split("+"))
+        names, with_limbs = variant[6:].removesuffix("/with-limbs"), variant.endswith("/with-limbs")
+        groups = tuple(names.split("+"))
         try:
-            return {"sides": pt.SideSettings(groups=groups)}
+            return {"sides": pt.SideSettings(groups=groups, torso_with_limbs=with_limbs)}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(

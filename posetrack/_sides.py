@@ -150,6 +150,11 @@ class SideSettings:
     """Offline (the whole recording known, :func:`two_sided_exchanged`): a group is read
     exchanged only where the forward and the backward pass together favour it by more than
     this (m)."""
+    torso_with_limbs: bool = False
+    """Offline (:func:`two_sided_exchanged`), with the "torso" group: the torso is read
+    exchanged only in frames where the arms or the legs are too (a whole-body swap); alone,
+    the shoulders and hips of a side view overlap in the image and one noisy frame reads as
+    a swap. Tried on tuning clips (benchmarks/README.md), not a default."""
     arbitrate: bool = True
     """The depth decides. Offline (:func:`arbitration_spans`) each stretch the two-sided
     labelling reads exchanged is tracked twice from the same state, with the labels exchanged
@@ -198,10 +203,11 @@ class SideSettings:
         return cls(**changes)
 
     def __post_init__(self):
-        if not isinstance(self.arbitrate, bool):
-            raise ValueError(
-                f"SideSettings: arbitrate must be True or False, got {self.arbitrate!r}"
-            )
+        for name in ("arbitrate", "torso_with_limbs"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(
+                    f"SideSettings: {name} must be True or False, got {getattr(self, name)!r}"
+                )
         for name, least in (
             ("arbitrate_after", 0),
             ("online_frames", 1),
