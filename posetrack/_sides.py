@@ -408,7 +408,12 @@ def two_sided_exchanged(
             lab.update(*frames[t])
             margins[1, t] = lab.margin
     seen = np.array([f is not None for f in frames], bool)
-    return (margins.sum(axis=0) < -settings.two_sided_margin) & seen[:, None]
+    exchanged = (margins.sum(axis=0) < -settings.two_sided_margin) & seen[:, None]
+    if settings.torso_with_limbs and "torso" in settings.groups:
+        g = settings.groups.index("torso")
+        limbs = [i for i, name in enumerate(settings.groups) if name in ("arms", "legs")]
+        exchanged[:, g] &= exchanged[:, limbs].any(axis=1)
+    return exchanged
 
 
 def arbitration_spans(exchanged: np.ndarray, after: int) -> list[tuple[int, int]]:

@@ -182,6 +182,22 @@ def test_two_sided_labelling_undoes_swaps_in_the_middle_and_at_the_end():
     np.testing.assert_array_equal(np.flatnonzero(ex[:, 1]), end)
 
 
+def test_torso_with_limbs_reads_the_torso_exchanged_only_beside_a_limb():
+    kp, conf, p3, has = _walk()
+    body, torso = np.arange(20, 30), np.arange(50, 58)
+    bad_kp, bad_conf = _swap(kp, conf, body, ARMS + LEGS + TORSO)  # a whole-body swap
+    bad_kp, bad_conf = _swap(bad_kp, bad_conf, torso, TORSO)  # the torso alone
+    frames = _frames(bad_kp, bad_conf, p3, has)
+    groups = ("arms", "legs", "torso")
+    ex = pt.two_sided_exchanged(frames, FX, pt.SideSettings(groups=groups))
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 2]), np.concatenate([body, torso]))
+    ex = pt.two_sided_exchanged(frames, FX, pt.SideSettings(groups=groups, torso_with_limbs=True))
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 2]), body)
+    np.testing.assert_array_equal(np.flatnonzero(ex[:, 0]), body)
+    with pytest.raises(ValueError, match="torso_with_limbs"):
+        pt.SideSettings(torso_with_limbs=1)
+
+
 def test_two_sided_labelling_skips_frames_without_the_person_and_checks_its_margin():
     kp, conf, p3, has = _walk()
     mid = np.arange(30, 40)
