@@ -28,7 +28,8 @@ ones, each clip at occlusion level 0 and 2) the same recording is tracked by:
   with detections that jumped onto another keypoint fitted as given ("duplicates kept",
   ``duplicates=None``, the default before 2026-11-27 evening); and with only the arms' and
   legs' left/right labels undone, the torso's as detected ("torso as detected",
-  ``SideSettings()``, the online default before 2026-11-28).
+  ``SideSettings()``, the online default before 2026-11-28); offline also with the torso's
+  labels undone ("torso relabelled too", ``SideSettings.for_mode("online")``).
 
 Columns: D (mm), coverage, C_j(100 mm), acceleration error (mm/frame^2), frames with a
 swapped limb pair, the worst clip's D as a multiple of LVM's on the same clip, and on the
@@ -70,6 +71,7 @@ ROWS = (
     f"MHT_h online L={LAG}, no L/R", f"MHT_h online L={LAG}, L/R as read",
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
     "MHT_h offline, duplicates kept", f"MHT_h online L={LAG}, torso as detected",
+    "MHT_h offline, torso relabelled too",
 )  # fmt: skip
 
 
@@ -85,9 +87,9 @@ ONLINE_ROWS = (
 )  # fmt: skip
 
 
-#: ``--offline-only``: LVM, the offline default and the offline default before 2026-11-27's
-#: late evening (detections that jumped onto another keypoint fitted as given).
-OFFLINE_ROWS = ("LVM", "MHT_h offline", "MHT_h offline, duplicates kept")
+#: ``--offline-only``: LVM, the offline default and the offline default with the torso's
+#: left/right labels undone too (as online; a candidate default, 2026-11-28).
+OFFLINE_ROWS = ("LVM", "MHT_h offline", "MHT_h offline, torso relabelled too")
 
 
 def run_clip(
@@ -110,7 +112,8 @@ def run_clip(
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
     if offline_only:
-        return {"truth": seq.joints3d, "est": out, "cost": _offline_default(seq, args, out)}
+        cost = _offline_default(seq, args, out, full=False)
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
     cost = {} if online_only else _offline_rows(seq, args, out, frames)
     for lag in (LAG, 0):
         on_tr = pt.Tracker(seq.intrinsics, mode="online", lag=lag)
@@ -172,12 +175,18 @@ def _offline_rows(seq, args, out: dict, frames: int) -> dict:
     return cost
 
 
-def _offline_default(seq, args, out: dict) -> dict:
-    """The offline default's row into ``out`` (and, the default before 2026-11-27's late
-    evening, the row with detections on another keypoint fitted as given); its costs."""
+def _offline_default(seq, args, out: dict, full: bool = True) -> dict:
+    """The offline default's row into ``out``, the row with the torso's left/right labels
+    undone too, and (``full``; the default before 2026-11-27's late evening) the row with
+    detections on another keypoint fitted as given; the default's costs."""
     frames = len(seq.depth)
-    out["MHT_h offline, duplicates kept"] = pt.track(
-        *args, seq.intrinsics, duplicates=None
+    if full:
+        out["MHT_h offline, duplicates kept"] = pt.track(
+            *args, seq.intrinsics, duplicates=None
+        ).keypoints3d
+    # The torso's left/right labels undone too (the online default since 2026-11-28).
+    out["MHT_h offline, torso relabelled too"] = pt.track(
+        *args, seq.intrinsics, sides=pt.SideSettings.for_mode("online")
     ).keypoints3d
     lr_tr = pt.Tracker(seq.intrinsics, mode="offline")  # the default
     res = lr_tr.run(*args)
@@ -216,8 +225,8 @@ def main() -> int:
     )  # fmt: skip
     ap.add_argument(
         "--offline-only", action="store_true",
-        help="LVM, the offline default and the offline default fitting detections on another "
-        "keypoint as given",
+        help="LVM, the offline default and the offline default with the torso's left/right "
+        "labels undone too",
     )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
