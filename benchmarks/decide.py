@@ -17,8 +17,7 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
 Variants: ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
 names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
-every other setting is the mode's default. ~25-40 s
-per run on 2 CPU cores.
+every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
 from __future__ import annotations

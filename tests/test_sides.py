@@ -122,9 +122,10 @@ def test_a_whole_body_swap_is_undone_only_with_the_torso_group():
     np.testing.assert_array_equal(out_conf, conf)
     # Arms and legs alone (the offline default): the shoulders and hips stay exchanged.
     out_kp, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings.for_mode("offline"))
-    np.testing.assert_array_equal(out_kp[:, [3, 4, 6, 7, 9, 10, 12, 13]],
-                                  kp[:, [3, 4, 6, 7, 9, 10, 12, 13]])  # fmt: skip
-    np.testing.assert_array_equal(out_kp[sw][:, [2, 5, 8, 11]], kp[sw][:, [5, 2, 11, 8]])
+    limbs = [k for pair in ARMS + LEGS for k in pair]
+    np.testing.assert_array_equal(out_kp[:, limbs], kp[:, limbs])
+    right, left = [r for r, _ in TORSO], [lt for _, lt in TORSO]
+    np.testing.assert_array_equal(out_kp[sw][:, right + left], kp[sw][:, left + right])
 
 
 def test_for_mode_gives_the_trackers_defaults():
