@@ -1,7 +1,8 @@
 """Tuning-seed decision runs (issue 12): D of tracker variants per clip and tracker seed.
 
 Variants differ in one setting: the filter of detections that jumped onto another keypoint
-(``DuplicateSettings``) or the left/right groups relabelled (``SideSettings.groups``).
+(``DuplicateSettings``), the left/right groups relabelled (``SideSettings.groups``) or the
+consensus refit (``TrackerConfig``).
 
 Runs the 40 tuning clips of the decisions recorded in benchmarks/README.md (wide real motion
 seeds 150-157 with ``tune.REAL``, wide procedural 144-149 and standard 136-141 with
@@ -14,7 +15,9 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
     python benchmarks/decide.py OUT.jsonl --variants sides:arms+legs,sides:arms+legs+torso
     python benchmarks/decide.py OUT.jsonl --part 0 --parts 2 ...  # two processes
 
-Variants: ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
+Variants: ``default`` (every setting the mode's default), ``inbatch``
+(``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
+``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
 names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
@@ -43,6 +46,12 @@ def clips() -> list[tuple[str, int, str, str]]:
 
 def settings(variant: str) -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
+    if variant == "default":
+        return {}
+    if variant == "inbatch":
+        return {"config": pt.TrackerConfig(consensus_in_batch=True)}
+    if variant == "norefit":
+        return {"config": pt.TrackerConfig(consensus_refit=False)}
     if variant == "kept":
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
@@ -55,7 +64,8 @@ def settings(variant: str) -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
-        f"error: --variants: {variant!r} is neither 'kept', 'settleN' nor 'sides:G+G...'"
+        f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'kept', "
+        "'settleN', 'sides:G+G...'"
     )
 
 
