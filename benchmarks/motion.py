@@ -44,6 +44,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --motions real --clips 12   # real motion capture, ~30 min
     python benchmarks/motion.py --online-only ...   # LVM and the online default only
     python benchmarks/motion.py --offline-only ...  # LVM and the offline default only
+    python benchmarks/motion.py --refit-only ...    # both defaults, consensus refit before/after
 """
 
 from __future__ import annotations
@@ -71,7 +72,8 @@ ROWS = (
     f"MHT_h online L={LAG}, no L/R", f"MHT_h online L={LAG}, L/R as read",
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
     "MHT_h offline, duplicates kept", f"MHT_h online L={LAG}, torso as detected",
-    "MHT_h offline, torso relabelled too",
+    "MHT_h offline, torso relabelled too", "MHT_h offline, refit after the scores",
+    f"MHT_h online L={LAG}, refit after the scores",
 )  # fmt: skip
 
 
@@ -91,6 +93,14 @@ ONLINE_ROWS = (
 #: left/right labels undone too (as online; a candidate default, 2026-11-28).
 OFFLINE_ROWS = ("LVM", "MHT_h offline", "MHT_h offline, torso relabelled too")
 
+#: ``--refit-only``: LVM and both defaults (offline, online at lag 3), each also with the
+#: consensus refit after the scores instead of inside the batch (the default before
+#: 2026-11-28; ``TrackerConfig.recommended(mode=None)``).
+REFIT_ROWS = (
+    "LVM", "MHT_h offline", "MHT_h offline, refit after the scores", f"MHT_h online L={LAG}",
+    f"MHT_h online L={LAG}, refit after the scores",
+)  # fmt: skip
+
 
 def run_clip(
     seed: int,
@@ -100,6 +110,7 @@ def run_clip(
     variety: str,
     online_only: bool = False,
     offline_only: bool = False,
+    refit_only: bool = False,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -111,6 +122,21 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
+    # The consensus refit after the scores (TrackerConfig's dataclass default; the offline
+    # and online default until 2026-11-28).
+    after = pt.TrackerConfig.recommended()
+    if refit_only or not (online_only or offline_only):
+        out["MHT_h offline, refit after the scores"] = pt.track(
+            *args, seq.intrinsics, after
+        ).keypoints3d
+        out[f"MHT_h online L={LAG}, refit after the scores"] = pt.track(
+            *args, seq.intrinsics, after, mode="online"
+        ).keypoints3d
+    if refit_only:
+        res = pt.track(*args, seq.intrinsics)
+        out["MHT_h offline"] = res.keypoints3d
+        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": {"step_ms": res.ms_per_frame}}
     if offline_only:
         cost = _offline_default(seq, args, out, full=False)
         return {"truth": seq.joints3d, "est": out, "cost": cost}
@@ -228,11 +254,19 @@ def main() -> int:
         help="LVM, the offline default and the offline default with the torso's left/right "
         "labels undone too",
     )  # fmt: skip
+    ap.add_argument(
+        "--refit-only", action="store_true",
+        help="LVM and the offline and online defaults, each also with the consensus refit "
+        "after the scores (the default before 2026-11-28)",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
-    if a.online_only and a.offline_only:
-        ap.error("--online-only and --offline-only exclude each other")
-    names = ONLINE_ROWS if a.online_only else OFFLINE_ROWS if a.offline_only else ROWS
+    if a.online_only + a.offline_only + a.refit_only > 1:
+        ap.error("--online-only, --offline-only and --refit-only exclude each other")
+    names = (
+        ONLINE_ROWS if a.online_only else OFFLINE_ROWS if a.offline_only
+        else REFIT_ROWS if a.refit_only else ROWS
+    )  # fmt: skip
     clips = 3 if a.quick else a.clips
     motions = MOTIONS
     if a.motions == "real":
@@ -251,7 +285,10 @@ def main() -> int:
         seed = REPORT_SEEDS[a.start + i]
         motion = motions[(a.start + i) % len(motions)]
         for occ in (0, 2):
-            r = run_clip(seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only)
+            r = run_clip(
+                seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
+                a.refit_only,
+            )  # fmt: skip
             gt = r["truth"]
             rows = {}
             for name in names:
@@ -298,7 +335,7 @@ def main() -> int:
                 "jitter_mm": float(np.mean(jit)) if jit else None,
             }
     costs = [c["cost"] for c in per_clip]
-    cost = {} if a.offline_only else {
+    cost = {} if a.offline_only or a.refit_only else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
         "online_retracked_share_mean": float(np.mean([c["online_retracked_share"] for c in costs])),
@@ -306,7 +343,7 @@ def main() -> int:
         # Online: the body shape refinement, once, after 60 tracked frames (a pause of update()).
         "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
     }  # fmt: skip
-    if not a.online_only:
+    if not (a.online_only or a.refit_only):
         step = float(np.median([c["step_ms"] for c in costs]))
         cost.update({
             "step_ms": step,
@@ -331,7 +368,7 @@ def main() -> int:
         ) / step
     if a.offline_only:
         cost["detections_dropped"] = int(np.sum([c["dropped"] for c in costs]))
-    elif not a.online_only:
+    elif not (a.online_only or a.refit_only):
         cost["online_total_over_step"] = (
             (cost["online_step_ms"] + cost["online_ms_per_frame"])
             * (1 + cost["online_retracked_share_mean"])
@@ -366,7 +403,7 @@ def main() -> int:
             f"{100 * cost['online_retracked_share_mean']:.0f} % of the frames tracked twice; "
             f"body shape refinement {cost['online_refine_s_median']:.1f} s once (median)"
         )
-    else:
+    elif not a.refit_only:
         print(
             f"\ncost per frame: step {step:.1f} ms; offline smoother "
             f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
@@ -386,7 +423,7 @@ def main() -> int:
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
-        "offline_only": a.offline_only,
+        "offline_only": a.offline_only, "refit_only": a.refit_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ Online (``--mode online``), ``first_published_s`` is when the first pose is publ
 frame ``lag`` frames after the first one has been tracked (``Tracker.lagged``).
 
 Usage: python benchmarks/startup.py [--quick] [--mode offline|online] [--chunk C]
-[--out benchmarks/results/startup.json]
+[--refit-after] [--out benchmarks/results/startup.json]
 (``--quick``: 320x240 only, no command line rows.)
 """
 
@@ -45,7 +45,7 @@ FRAMES = 30
 SEED = 7  # any clip: the timings do not depend on the motion
 
 
-def _child(npz: str, cache: str, launched: float, mode: str, chunk: str) -> None:
+def _child(npz: str, cache: str, launched: float, mode: str, chunk: str, after: str) -> None:
     """One measured process (``--child``): prints one JSON line."""
     t_import0 = time.time()
     import numpy as np
@@ -67,7 +67,9 @@ def _child(npz: str, cache: str, launched: float, mode: str, chunk: str) -> None
     def progress(done, total, postfix):
         first.append(time.time())
 
-    tracker = pt.Tracker(intr, mode=mode, chunk=int(chunk) if chunk else pt.RUN_CHUNK)
+    # --refit-after: the consensus refit after the scores (the default before 2026-11-28).
+    config = pt.TrackerConfig.recommended() if after == "1" else None
+    tracker = pt.Tracker(intr, config, mode=mode, chunk=int(chunk) if chunk else pt.RUN_CHUNK)
     result = tracker.run(depth, kp, conf, progress=progress)
     t_done = time.time()
     np.save(npz.replace(".npz", f"-{os.getpid()}.npy"), result.keypoints3d)
@@ -107,12 +109,12 @@ def _compile_bytecode() -> None:
     compileall.compile_dir(str(ROOT / "posetrack"), quiet=1)
 
 
-def _run_child(npz: Path, cache: Path, mode: str, chunk: int | None) -> dict:
+def _run_child(npz: Path, cache: Path, mode: str, chunk: int | None, after: bool) -> dict:
     env = _child_env()
     launched = time.time()
     proc = subprocess.run(
         [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched), mode,
-         str(chunk or "")],
+         str(chunk or ""), "1" if after else "0"],
         capture_output=True, text=True, env=env, check=False,
     )  # fmt: skip
     if proc.returncode:
@@ -171,6 +173,11 @@ def main() -> None:
         default=None,
         help="Tracker(chunk=...): frames per compiled call (default: RUN_CHUNK)",
     )
+    ap.add_argument(
+        "--refit-after",
+        action="store_true",
+        help="the consensus refit after the scores (the default before 2026-11-28)",
+    )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "startup.json"))
     args = ap.parse_args()
     import numpy as np
@@ -185,7 +192,10 @@ def main() -> None:
         for width, height in resolutions:
             npz = _make_clip(folder, width, height)
             cache = folder / f"cache-{width}x{height}"
-            runs = {run: _run_child(npz, cache, args.mode, args.chunk) for run in ("cold", "warm")}
+            runs = {
+                run: _run_child(npz, cache, args.mode, args.chunk, args.refit_after)
+                for run in ("cold", "warm")
+            }
             a, b = (np.load(runs[r]["poses"]) for r in ("cold", "warm"))
             same = bool(np.array_equal(a, b, equal_nan=True))
             for run, r in runs.items():
@@ -225,6 +235,7 @@ def main() -> None:
         "frames": FRAMES,
         "mode": args.mode,
         "chunk": args.chunk,
+        "refit_after": args.refit_after,
         "machine": machine_info(),
         "rows": rows,
         "cli_150_frames_320x240": cli,
@@ -236,6 +247,6 @@ def main() -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        _child(*sys.argv[2:4], float(sys.argv[4]), *sys.argv[5:7])
+        _child(*sys.argv[2:4], float(sys.argv[4]), *sys.argv[5:8])
     else:
         main()

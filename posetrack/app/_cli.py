@@ -82,7 +82,8 @@ def _detected(detect_keypoints, rgb, n: int, *, progress: bool):
 
 
 def _tracker_config(args):
-    """``TrackerConfig.recommended`` for ``--method`` / ``--hypotheses`` (``track``, ``warmup``)."""
+    """``TrackerConfig.recommended`` for ``--method`` / ``--hypotheses`` and the mode
+    (``track``, ``warmup``, ``track-many``)."""
     from .._config import TrackerConfig
 
     if args.hypotheses is not None and args.hypotheses < 1:
@@ -93,7 +94,7 @@ def _tracker_config(args):
             print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
         else:
             overrides["num_hypotheses"] = args.hypotheses
-    return TrackerConfig.recommended(args.method, **overrides)
+    return TrackerConfig.recommended(args.method, mode=_mode(args), **overrides)
 
 
 def _mode(args) -> str:
