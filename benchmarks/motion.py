@@ -44,7 +44,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --motions real --clips 12   # real motion capture, ~30 min
     python benchmarks/motion.py --online-only ...   # LVM and the online default only
     python benchmarks/motion.py --offline-only ...  # LVM and the offline default only
-    python benchmarks/motion.py --refit-only ...    # both defaults, consensus refit before/after
+    python benchmarks/motion.py --refit-only ...    # both defaults, refit after / in the batch
 """
 
 from __future__ import annotations
@@ -72,8 +72,8 @@ ROWS = (
     f"MHT_h online L={LAG}, no L/R", f"MHT_h online L={LAG}, L/R as read",
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
     "MHT_h offline, duplicates kept", f"MHT_h online L={LAG}, torso as detected",
-    "MHT_h offline, torso relabelled too", "MHT_h offline, refit after the scores",
-    f"MHT_h online L={LAG}, refit after the scores",
+    "MHT_h offline, torso relabelled too", "MHT_h offline, refit in the batch",
+    f"MHT_h online L={LAG}, refit in the batch",
 )  # fmt: skip
 
 
@@ -94,11 +94,11 @@ ONLINE_ROWS = (
 OFFLINE_ROWS = ("LVM", "MHT_h offline", "MHT_h offline, torso relabelled too")
 
 #: ``--refit-only``: LVM and both defaults (offline, online at lag 3), each also with the
-#: consensus refit after the scores instead of inside the batch (the default before
-#: 2026-11-28; ``TrackerConfig.recommended(mode=None)``).
+#: consensus refit inside the batch instead of after the scores
+#: (``TrackerConfig(consensus_in_batch=True)``; a candidate default, 2026-11-28).
 REFIT_ROWS = (
-    "LVM", "MHT_h offline", "MHT_h offline, refit after the scores", f"MHT_h online L={LAG}",
-    f"MHT_h online L={LAG}, refit after the scores",
+    "LVM", "MHT_h offline", "MHT_h offline, refit in the batch", f"MHT_h online L={LAG}",
+    f"MHT_h online L={LAG}, refit in the batch",
 )  # fmt: skip
 
 
@@ -122,15 +122,14 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
-    # The consensus refit after the scores (TrackerConfig's dataclass default; the offline
-    # and online default until 2026-11-28).
-    after = pt.TrackerConfig.recommended()
+    # The consensus refit inside the batch (TrackerConfig.consensus_in_batch; opt-in).
+    in_batch = pt.TrackerConfig(consensus_in_batch=True)
     if refit_only or not (online_only or offline_only):
-        out["MHT_h offline, refit after the scores"] = pt.track(
-            *args, seq.intrinsics, after
+        out["MHT_h offline, refit in the batch"] = pt.track(
+            *args, seq.intrinsics, in_batch
         ).keypoints3d
-        out[f"MHT_h online L={LAG}, refit after the scores"] = pt.track(
-            *args, seq.intrinsics, after, mode="online"
+        out[f"MHT_h online L={LAG}, refit in the batch"] = pt.track(
+            *args, seq.intrinsics, in_batch, mode="online"
         ).keypoints3d
     if refit_only:
         res = pt.track(*args, seq.intrinsics)
@@ -257,7 +256,7 @@ def main() -> int:
     ap.add_argument(
         "--refit-only", action="store_true",
         help="LVM and the offline and online defaults, each also with the consensus refit "
-        "after the scores (the default before 2026-11-28)",
+        "inside the batch (TrackerConfig(consensus_in_batch=True))",
     )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()

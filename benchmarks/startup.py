@@ -24,7 +24,7 @@ Online (``--mode online``), ``first_published_s`` is when the first pose is publ
 frame ``lag`` frames after the first one has been tracked (``Tracker.lagged``).
 
 Usage: python benchmarks/startup.py [--quick] [--mode offline|online] [--chunk C]
-[--refit-after] [--out benchmarks/results/startup.json]
+[--in-batch] [--out benchmarks/results/startup.json]
 (``--quick``: 320x240 only, no command line rows.)
 """
 
@@ -45,7 +45,7 @@ FRAMES = 30
 SEED = 7  # any clip: the timings do not depend on the motion
 
 
-def _child(npz: str, cache: str, launched: float, mode: str, chunk: str, after: str) -> None:
+def _child(npz: str, cache: str, launched: float, mode: str, chunk: str, in_batch: str) -> None:
     """One measured process (``--child``): prints one JSON line."""
     t_import0 = time.time()
     import numpy as np
@@ -67,8 +67,8 @@ def _child(npz: str, cache: str, launched: float, mode: str, chunk: str, after: 
     def progress(done, total, postfix):
         first.append(time.time())
 
-    # --refit-after: the consensus refit after the scores (the default before 2026-11-28).
-    config = pt.TrackerConfig.recommended() if after == "1" else None
+    # --in-batch: the consensus refit inside the batch (TrackerConfig.consensus_in_batch).
+    config = pt.TrackerConfig(consensus_in_batch=True) if in_batch == "1" else None
     tracker = pt.Tracker(intr, config, mode=mode, chunk=int(chunk) if chunk else pt.RUN_CHUNK)
     result = tracker.run(depth, kp, conf, progress=progress)
     t_done = time.time()
@@ -109,12 +109,12 @@ def _compile_bytecode() -> None:
     compileall.compile_dir(str(ROOT / "posetrack"), quiet=1)
 
 
-def _run_child(npz: Path, cache: Path, mode: str, chunk: int | None, after: bool) -> dict:
+def _run_child(npz: Path, cache: Path, mode: str, chunk: int | None, in_batch: bool) -> dict:
     env = _child_env()
     launched = time.time()
     proc = subprocess.run(
         [sys.executable, __file__, "--child", str(npz), str(cache), repr(launched), mode,
-         str(chunk or ""), "1" if after else "0"],
+         str(chunk or ""), "1" if in_batch else "0"],
         capture_output=True, text=True, env=env, check=False,
     )  # fmt: skip
     if proc.returncode:
@@ -174,9 +174,9 @@ def main() -> None:
         help="Tracker(chunk=...): frames per compiled call (default: RUN_CHUNK)",
     )
     ap.add_argument(
-        "--refit-after",
+        "--in-batch",
         action="store_true",
-        help="the consensus refit after the scores (the default before 2026-11-28)",
+        help="the consensus refit inside the batch (TrackerConfig(consensus_in_batch=True))",
     )
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "startup.json"))
     args = ap.parse_args()
@@ -193,7 +193,7 @@ def main() -> None:
             npz = _make_clip(folder, width, height)
             cache = folder / f"cache-{width}x{height}"
             runs = {
-                run: _run_child(npz, cache, args.mode, args.chunk, args.refit_after)
+                run: _run_child(npz, cache, args.mode, args.chunk, args.in_batch)
                 for run in ("cold", "warm")
             }
             a, b = (np.load(runs[r]["poses"]) for r in ("cold", "warm"))
@@ -235,7 +235,7 @@ def main() -> None:
         "frames": FRAMES,
         "mode": args.mode,
         "chunk": args.chunk,
-        "refit_after": args.refit_after,
+        "in_batch": args.in_batch,
         "machine": machine_info(),
         "rows": rows,
         "cli_150_frames_320x240": cli,

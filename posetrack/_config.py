@@ -167,12 +167,7 @@ class TrackerConfig(eqx.Module):
     second fit and render program inside the step, about a third of its compilation), fit one
     more hypothesis in the same batch: the previous output on the landmarks within
     ``consensus_distance`` of its keypoints, scored with the others; if it wins it takes the
-    best hypothesis' place, as the refit does. Not in the paper. The offline and online
-    modes' default (:meth:`recommended` with their ``mode``, and a :class:`Tracker` given no
-    config): on tuning clips it tracked better there (offline 48.3 -> 47.8 mm, online 55.3 ->
-    54.0) and the step compiles ~4 s faster; per frame it lost on the wide generator's
-    occluded clips (+4.6 mm), so ``TrackerConfig()`` and the per-frame mode keep the refit
-    after the scores (benchmarks/README.md, "The consensus refit inside the batch")."""
+    best hypothesis' place, as the refit does. Not in the paper."""
     limb_hypotheses: int = eqx.field(default=0, static=True)
     """S of the N hypotheses restart every frame from the previous output with each limb
     turned onto this frame's 3D landmarks: as labelled, then with both arms and legs, the
@@ -291,24 +286,11 @@ class TrackerConfig(eqx.Module):
         return dataclasses.replace(self, **changes)
 
     @staticmethod
-    def recommended(
-        method: str = "mht_h", *, mode: str | None = None, **overrides
-    ) -> TrackerConfig:
+    def recommended(method: str = "mht_h", **overrides) -> TrackerConfig:
         """What we ship for ``method``: the defaults for MHT_h (N = 10); for the other methods
         the paper's best (N, r, R) and Eq. (1)'s sum of norms (``"l1"``), with our additions
         (surface offset, unknown invalid depth, floor removal, 2D temporal weight, reseeding,
-        consensus refit) on. ``posetrack track --method`` uses this.
-
-        ``mode``: the :class:`Tracker` mode it is for. ``"offline"`` and ``"online"`` fit the
-        consensus refit inside the batch (``consensus_in_batch``, decided per mode);
-        ``"per-frame"`` and ``None`` keep the dataclass defaults. ``overrides`` win."""
-        if mode not in (None, "offline", "online", "per-frame"):
-            raise ValueError(
-                "TrackerConfig.recommended: mode must be 'offline', 'online', 'per-frame' or "
-                f"None, got {mode!r}"
-            )
-        if mode in ("offline", "online"):
-            overrides = {"consensus_in_batch": True, **overrides}
+        consensus refit) on. ``posetrack track --method`` uses this."""
         if method == "mht_h":
             return TrackerConfig(**{"method": "mht_h", **overrides})
         return _paper_best(method, overrides)

@@ -96,7 +96,7 @@ def track_many(
         raise ValueError(f"track_many: errors must be 'raise' or 'return', got {errors!r}")
     if isinstance(batch, bool) or not isinstance(batch, (int, np.integer)) or batch < 1:
         raise ValueError(f"track_many: batch must be an int >= 1, got {batch!r}")
-    config = config or TrackerConfig.recommended(mode=tracker_options.get("mode", "offline"))
+    config = config or TrackerConfig()
     items = list(sequences)
     results: list[Any] = [None] * len(items)
     todo: queue.SimpleQueue = queue.SimpleQueue()

@@ -612,9 +612,7 @@ class Tracker:
             )
         self.person_rule = person
         self.follow = follow
-        # Without a config, the mode's shipped one (the consensus refit in the batch offline
-        # and online; TrackerConfig.recommended).
-        self.config = config or TrackerConfig.recommended(mode=mode)
+        self.config = config or TrackerConfig()
         if not isinstance(self.config, TrackerConfig):
             raise TypeError(
                 f"Tracker: config must be posetrack.TrackerConfig, got {type(self.config)}"

@@ -80,6 +80,9 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert len(used) == 20 and len(set(used)) == 20
     assert all(s in seeds.TUNING_SEEDS for s in used), used
     assert decide.settings("kept") == {"duplicates": None}
+    assert decide.settings("default") == {}
+    assert decide.settings("inbatch")["config"].consensus_in_batch
+    assert not decide.settings("norefit")["config"].consensus_refit
     assert decide.settings("settle5")["duplicates"].settle == 5
     assert decide.settings("sides:arms+torso")["sides"].groups == ("arms", "torso")
     for bad in ("settle", "sides:arms+elbows"):

@@ -102,9 +102,9 @@ def test_frames_without_observation_hold_the_pose(seq):
 def test_first_frames_without_observation_are_nan_not_garbage(seq):
     conf = seq.confidence[:6].copy()
     conf[:2] = 0.0
-    res = pt.Tracker(seq.intrinsics, LVM, shape=pt.BodyShape.default()).run(
-        seq.depth[:6], seq.keypoints2d[:6], conf, progress=False
-    )
+    res = pt.Tracker(
+        seq.intrinsics, LVM, shape=pt.BodyShape.default()
+    ).run(seq.depth[:6], seq.keypoints2d[:6], conf, progress=False)
     assert np.isnan(res.keypoints3d[:2]).all() and list(res.status[:2]) == [NO_OBSERVATION] * 2
     assert np.isfinite(res.keypoints3d[2:]).all()
     assert np.isfinite(res.params).all()  # parameters are never NaN
@@ -168,32 +168,6 @@ def test_paper_config_is_the_paper_method_alone():
     assert TrackerConfig.paper("mht_r").r == 0.05 and TrackerConfig.paper("mht_r").R == 0.15
     assert TrackerConfig.paper("mht_h", num_hypotheses=3).n == 3
     assert set(pt.BEYOND_THE_PAPER) <= set(TrackerConfig.__dataclass_fields__)
-
-
-def test_recommended_per_mode_and_the_trackers_default_config():
-    """Offline and online fit the consensus refit inside the batch (decided per mode on tuning
-    clips); per-frame and ``mode=None`` keep the dataclass default (the refit after the
-    scores); overrides win; a tracker given no config takes its mode's."""
-    assert not TrackerConfig().consensus_in_batch
-    for mode, in_batch in (
-        ("offline", True),
-        ("online", True),
-        ("per-frame", False),
-        (None, False),
-    ):
-        for method in ("mht_h", "mht_r", "lvm"):
-            c = TrackerConfig.recommended(method, mode=mode)
-            assert c.consensus_in_batch is in_batch and c.method == method
-    assert not TrackerConfig.recommended(mode="online", consensus_in_batch=False).consensus_in_batch
-    assert TrackerConfig.recommended(mode="offline", num_hypotheses=4).n == 4
-    with pytest.raises(ValueError, match="mode must be"):
-        TrackerConfig.recommended(mode="live")
-    intr = pt.Intrinsics(fx=280.0, fy=280.0, cx=160.0, cy=120.0, width=320, height=240)
-    for mode in ("offline", "online", "per-frame"):
-        tracker = pt.Tracker(intr, mode=mode)
-        assert tracker.config == TrackerConfig.recommended(mode=mode)
-    given = TrackerConfig(num_hypotheses=3)
-    assert pt.Tracker(intr, given, mode="offline").config is given  # as given
 
 
 _COUNT_LOWERINGS = """

@@ -82,8 +82,7 @@ def _detected(detect_keypoints, rgb, n: int, *, progress: bool):
 
 
 def _tracker_config(args):
-    """``TrackerConfig.recommended`` for ``--method`` / ``--hypotheses`` and the mode
-    (``track``, ``warmup``, ``track-many``)."""
+    """``TrackerConfig.recommended`` for ``--method`` / ``--hypotheses`` (``track``, ``warmup``)."""
     from .._config import TrackerConfig
 
     if args.hypotheses is not None and args.hypotheses < 1:
@@ -94,7 +93,7 @@ def _tracker_config(args):
             print("note: --hypotheses ignored: lvm uses one hypothesis", file=sys.stderr)
         else:
             overrides["num_hypotheses"] = args.hypotheses
-    return TrackerConfig.recommended(args.method, mode=_mode(args), **overrides)
+    return TrackerConfig.recommended(args.method, **overrides)
 
 
 def _mode(args) -> str:
