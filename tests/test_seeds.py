@@ -1,11 +1,13 @@
 """The tuning protocol's seed ranges (benchmarks/seeds.py): reported, tuning and test seeds never
 overlap, accuracy.py reports only reported seeds, tune.py refuses every other seed, and the
-tuning clips are not the reported ones. No tracking: these run in about a second."""
+tuning clips are not the reported ones. No tracking: these run in seconds."""
 
+import dataclasses
 import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
@@ -88,3 +90,39 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     for bad in ("settle", "sides:arms+elbows"):
         with pytest.raises(SystemExit, match="settleN|groups"):
             decide.settings(bad)
+
+
+def test_the_wide_factor_runs_put_back_one_factor_each(seeds):
+    """benchmarks/wide_factors.py: tuning seeds only; each "wide, standard X" form is the wide
+    clip with exactly that factor as the standard clip has it, the others still drawn wide."""
+    wf = load("wide_factors")
+    assert all(s in seeds.TUNING_SEEDS for s in wf.SEEDS)
+    clip = {f: wf.generate(150, "walk", 0, f, frames=6) for f in wf.FORMS}
+    assert clip["standard"].meta["wide"] is None
+    wide = clip["wide"].meta["wide"]
+    assert wide["camera"] is not None and wide["sensor_applied"] and wide["detector_applied"]
+    body = clip["wide, standard body"].meta["wide"]
+    assert body["body"] == dataclasses.asdict(wf.BodyVariation()) != wide["body"]
+    assert {k: v for k, v in body.items() if k != "body"} == {
+        k: v for k, v in wide.items() if k != "body"
+    }
+    camera = clip["wide, standard camera"].meta["wide"]
+    assert camera["camera"] is None and camera["body"] == wide["body"]
+    assert not clip["wide, standard sensor"].meta["wide"]["sensor_applied"]
+    assert clip["wide, standard sensor"].meta["wide"]["detector_applied"]
+    assert not clip["wide, standard detector"].meta["wide"]["detector_applied"]
+    # The truth moves with the body and the camera only.
+    np.testing.assert_array_equal(clip["wide, standard sensor"].joints3d, clip["wide"].joints3d)
+    assert not np.allclose(clip["wide, standard camera"].joints3d, clip["wide"].joints3d)
+    std = dataclasses.asdict(wf.DetectorConfig())
+    for group, fields in wf.DETECTOR_PARTS.items():
+        det = wf.generate(150, "walk", 0, f"wide, standard detector {group}", frames=2)
+        assert (
+            det.meta["detector"]
+            == {k: std[k] if k in fields else v for k, v in clip["wide"].meta["detector"].items()}
+            != clip["wide"].meta["detector"]
+        ), group
+    # The patch is undone: a wide clip after the forms is the wide clip.
+    np.testing.assert_array_equal(
+        wf.generate(150, "walk", 0, "wide", frames=6).keypoints2d, clip["wide"].keypoints2d
+    )
