@@ -106,14 +106,20 @@ def main() -> int:
     )  # fmt: skip
     ap.add_argument("--part", type=int, default=0)
     ap.add_argument("--parts", type=int, default=1)
-    ap.add_argument("--forms", default=None, help="comma-separated subset of the forms")
+    ap.add_argument(
+        "--forms", default=None, help="a subset of the forms, separated by ';' (names hold commas)"
+    )
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "wide_factors.json"))
     a = ap.parse_args()
     assert all(s in TUNING_SEEDS for s in SEEDS)
     forms = DETECTOR_FORMS if a.detector_parts else FORMS
     if a.forms:
-        forms = tuple(f for f in forms if f in a.forms.split(","))
+        wanted = [f.strip() for f in a.forms.split(";")]
+        unknown = [f for f in wanted if f not in forms]
+        if unknown:
+            ap.error(f"--forms: {unknown} are none of {forms}")
+        forms = tuple(f for f in forms if f in wanted)
     if a.merge:
         runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     else:
