@@ -45,6 +45,10 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --online-only ...   # LVM and the online default only
     python benchmarks/motion.py --offline-only ...  # LVM and the offline default only
     python benchmarks/motion.py --refit-only ...    # both defaults, refit after / in the batch
+    python benchmarks/motion.py --refit-only --online-only ...  # the online pair only
+
+Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
+rows estimate (the in-batch refit gives up on more frames of some wide clips).
 """
 
 from __future__ import annotations
@@ -266,7 +270,8 @@ def main() -> int:
     ap.add_argument(
         "--refit-only", action="store_true",
         help="LVM and the offline and online defaults, each also with the consensus refit "
-        "inside the batch (TrackerConfig(consensus_in_batch=True))",
+        "inside the batch (TrackerConfig(consensus_in_batch=True)); with --online-only the "
+        "online pair only",
     )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
