@@ -132,24 +132,21 @@ def run_clip(
     out["LVM"] = lvm.keypoints3d
     # The consensus refit inside the batch (TrackerConfig.consensus_in_batch; opt-in).
     in_batch = pt.TrackerConfig(consensus_in_batch=True)
-    if refit_only and online_only:
-        out[f"MHT_h online L={LAG}, refit in the batch"] = pt.track(
-            *args, seq.intrinsics, in_batch, mode="online"
-        ).keypoints3d
-        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
-        return {"truth": seq.joints3d, "est": out, "cost": {}}
     if refit_only or not (online_only or offline_only):
-        out["MHT_h offline, refit in the batch"] = pt.track(
-            *args, seq.intrinsics, in_batch
-        ).keypoints3d
+        if not (refit_only and online_only):
+            out["MHT_h offline, refit in the batch"] = pt.track(
+                *args, seq.intrinsics, in_batch
+            ).keypoints3d
         out[f"MHT_h online L={LAG}, refit in the batch"] = pt.track(
             *args, seq.intrinsics, in_batch, mode="online"
         ).keypoints3d
     if refit_only:
-        res = pt.track(*args, seq.intrinsics)
-        out["MHT_h offline"] = res.keypoints3d
+        cost = {}
+        if not online_only:
+            res = pt.track(*args, seq.intrinsics)
+            out["MHT_h offline"], cost["step_ms"] = res.keypoints3d, res.ms_per_frame
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
-        return {"truth": seq.joints3d, "est": out, "cost": {"step_ms": res.ms_per_frame}}
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
     if offline_only:
         cost = _offline_default(seq, args, out, full=False)
         return {"truth": seq.joints3d, "est": out, "cost": cost}

@@ -72,13 +72,13 @@ def generate(seed: int, motion: str, occlusion: int, form: str, frames: int = 12
     elif form == "wide, standard detector":
         kw["detector"] = DetectorConfig()
     elif form.startswith("wide, standard detector "):
-        # The wide draw's detector (the draw is generate's own: same seed, same stream) with
-        # one group of fields as the standard detector has them.
-        draw = _DRAW(np.random.default_rng([int(seed) & 0xFFFFFFFF, _generate._WIDE]))
+        # The wide clip's detector (as generate records it) with one group of fields as the
+        # standard detector has them.
+        wide = pt.synth.generate(seed, motion=motion, n_frames=1, with_rgb=False, variety="wide")
         std = DetectorConfig()
         group = DETECTOR_PARTS[form.removeprefix("wide, standard detector ")]
         kw["detector"] = dataclasses.replace(
-            draw.detector_config(), **{f: getattr(std, f) for f in group}
+            DetectorConfig(**wide.meta["detector"]), **{f: getattr(std, f) for f in group}
         )
     elif form == "wide, standard body":
         patch = {"body": BodyVariation()}
