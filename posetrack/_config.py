@@ -49,6 +49,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "limb_hypotheses": 0,
     "occlusion_gate": False,
     "depth_confidence": 0.0,
+    "reinit_keep_facing": 0,
 }
 
 _POSITIVE = (
@@ -212,6 +213,15 @@ class TrackerConfig(eqx.Module):
     host side)."""
     lost_patience: int = eqx.field(default=5, static=True)
     """Consecutive lost frames before the tracker re-initialises from observations."""
+    reinit_keep_facing: int = eqx.field(default=0, static=True)
+    """A re-initialisation within this many frames of a track loss keeps the lost track's
+    facing: if this frame's landmarks turn the person round against the pose at the loss
+    (their left-right axes more than 90 degrees apart) and its shoulders and hips sit on the
+    other side's positions of the last tracked frame, its keypoints are read with every
+    left/right pair exchanged (host side; 0 = off, the default; 15 is the candidate measured
+    in ``benchmarks/facing.py``). A person does not turn round in half a second unseen; a
+    detector reading them as facing away does, and a track restarted on its reading stays
+    turned round (not in the paper)."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -264,6 +274,11 @@ class TrackerConfig(eqx.Module):
             raise ValueError(
                 f"TrackerConfig.limb_hypotheses must be in 0..4 and smaller than the number of "
                 f"hypotheses ({self.n}), got {self.limb_hypotheses}"
+            )
+        n = self.reinit_keep_facing
+        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+            raise ValueError(
+                f"TrackerConfig.reinit_keep_facing must be an int >= 0 (frames), got {n!r}"
             )
         if self.score_width < 8 or self.score_height < 8:
             raise ValueError(

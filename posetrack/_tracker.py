@@ -60,6 +60,7 @@ from ._smooth import (
     smooth_sequence,
     smooth_window_program,
 )
+from ._so3 import quat_to_matrix
 from ._step import LOST, NO_OBSERVATION, TRACKED, FrameEstimate, TrackState, tracker_step
 
 _DTYPE = jnp.float32
@@ -96,6 +97,9 @@ MODES = ("offline", "online", "per-frame")
 #: occluded clips by 0.7 mm; benchmarks/README.md). ``lag=0`` publishes each frame's pose at
 #: once (shakier).
 ONLINE_LAG = 3
+
+#: Every left/right keypoint pair exchanged (a whole-body swap): ``x[_BODY_FLIP]``.
+_BODY_FLIP = body.flip_labels(range(18))
 
 #: Frames per compiled call in :meth:`Tracker.run` (offline and per-frame modes): the steps of
 #: up to this many frames run as one ``lax.scan`` with the track-loss logic inside
@@ -627,6 +631,14 @@ class Tracker:
         self._floor = device_f32(NO_FLOOR)
         self._lost_run = 0
         self._ever_initialized = False
+        # (frame, pose, last tracked keypoints) of the last track loss: a quick
+        # re-initialisation keeps its facing; the followed person's keypoints (18, 2) and
+        # confidences (18,) as fitted in the last tracked frame.
+        self._dropped: tuple | None = None
+        self._last_tracked_kp: tuple | None = None
+        self.reinit_flips = 0
+        """Re-initialisations that exchanged left and right to keep the lost track's facing
+        (``TrackerConfig.reinit_keep_facing``)."""
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
         self.compile_s = 0.0
         self._init_timed = False
@@ -870,9 +882,12 @@ class Tracker:
         self._drop_track()
         self._forget_person()
         self._ever_initialized = False
+        self._dropped = None
 
     def _drop_track(self) -> None:
         """Forget the hypotheses after a loss; keep who is followed."""
+        if self._state is not None:  # the facing a quick re-initialisation keeps
+            self._dropped = (self._frames_seen, self._state.best, self._last_tracked_kp)
         self._state = None
         self._lost_run = 0
         if self._labeller is not None:
@@ -1008,6 +1023,20 @@ class Tracker:
         )  # fmt: skip
         if p0 is None:
             return False
+        if self._turned_since_drop(p0, kp, conf):
+            # Read as facing away right after a loss: a detector's whole-body swap, not a
+            # person turned round unseen. Start on the landmarks with left and right exchanged
+            # (and, online, go on relabelling them until the labelling sees the swap end).
+            lm = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
+            p0 = initial_pose(
+                np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
+                allow_partial=not self._ever_initialized,
+            )  # fmt: skip
+            if p0 is None:
+                return False
+            self.reinit_flips += 1
+            if self._labeller is not None and self.mode == "online":
+                self._labeller.reset(first=np.ones(len(self.exchanged), bool))
         t0 = time.perf_counter()
         res, kps, keys = initial_fit(
             self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
@@ -1034,6 +1063,24 @@ class Tracker:
         self._lost_run = 0
         self._ever_initialized = True
         return True
+
+    def _turned_since_drop(self, p0: np.ndarray, kp: np.ndarray, conf: np.ndarray) -> bool:
+        """Whether a re-initialisation at most ``config.reinit_keep_facing`` frames after a
+        track loss reads the person turned round: its start ``p0`` faces more than 90 degrees
+        away from the pose at the loss, and this frame's keypoints ``kp`` are the last tracked
+        frame's with left and right exchanged (:func:`exchanged_since`). Both: a track lost
+        because it had turned round itself (a wrong first pose) is not kept turned."""
+        if self._dropped is None or self._state is not None or self.config.reinit_keep_facing < 1:
+            return False
+        frame, before, last = self._dropped
+        if last is None or self._frames_seen - frame > self.config.reinit_keep_facing:
+            return False
+        if not exchanged_since(*last, kp, conf):
+            return False
+        before = np.asarray(resolve(before), np.float64)
+        left_now = quat_to_matrix(np.asarray(p0[3:7], np.float64))[:, 0]
+        left_before = quat_to_matrix(before[3:7])[:, 0]
+        return bool(np.dot(left_now, left_before) < 0)
 
     def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
         """The floor plane, or ``NO_FLOOR`` when there is none we can trust.
@@ -1281,6 +1328,7 @@ class Tracker:
             return est, LOST
         self._lost_run = 0
         self._follower.tracked(cands, p)
+        self._last_tracked_kp = (kp, conf)
         return est, TRACKED
 
     def run(
@@ -1556,6 +1604,7 @@ class Tracker:
                 self._depth_fit = f.depth
                 if st == TRACKED:
                     self._follower.tracked(f.cands, f.person_index)
+                    self._last_tracked_kp = (f.kp, f.conf)
             self._record_frame(
                 out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
                 f.person, f.depth, held=None if dropped else res.held[i],
@@ -1689,13 +1738,15 @@ class Tracker:
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
             self._key, self._frames_seen,
             copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
-            copy.deepcopy(self._duplicate_filter),
+            copy.deepcopy(self._duplicate_filter), self._dropped, self.reinit_flips,
+            self._last_tracked_kp,
         )  # fmt: skip
 
     def _restore(self, snap: tuple) -> None:
         (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
-            self._key, self._frames_seen, follower, labeller, duplicate_filter,
+            self._key, self._frames_seen, follower, labeller, duplicate_filter, self._dropped,
+            self.reinit_flips, self._last_tracked_kp,
         ) = snap  # fmt: skip
         keep = {id(self.intrinsics): self.intrinsics}
         self._follower = copy.deepcopy(follower, keep)
@@ -1802,6 +1853,27 @@ def nearest_index(have: np.ndarray, n: int) -> np.ndarray:
     hi = have[np.minimum(after, len(have) - 1)]
     lo = have[np.maximum(after - 1, 0)]
     return np.where(np.abs(t - lo) <= np.abs(hi - t), lo, hi)
+
+
+#: The left/right keypoint pairs :func:`exchanged_since` compares: the shoulders and the hips,
+#: which a whole-body swap exchanges and a limb's swap does not.
+_TORSO_PAIRS = ((2, 5), (8, 11))
+
+
+def exchanged_since(
+    kp_then: np.ndarray, conf_then: np.ndarray, kp_now: np.ndarray, conf_now: np.ndarray
+) -> bool:
+    """Whether the shoulders and hips of ``kp_now`` (18, 2) sit nearer the other side's
+    positions in ``kp_then`` than their own: summed over those pairs seen in both frames
+    (confidence above 0.1), the image distances with the labels exchanged are the smaller.
+    False where neither pair is seen in both."""
+    a = b = 0.0
+    for r, l in _TORSO_PAIRS:
+        if min(conf_then[r], conf_then[l], conf_now[r], conf_now[l]) <= 0.1:
+            continue
+        a += np.linalg.norm(kp_now[r] - kp_then[r]) + np.linalg.norm(kp_now[l] - kp_then[l])
+        b += np.linalg.norm(kp_now[r] - kp_then[l]) + np.linalg.norm(kp_now[l] - kp_then[r])
+    return bool(b < a)
 
 
 def track(

@@ -154,6 +154,58 @@ def test_config_fit_default_depends_on_method():
         TrackerConfig(fit="l2")
 
 
+def test_a_quick_reinitialisation_keeps_the_lost_tracks_facing(seq):
+    """Right after a track loss, a frame whose detections are a whole-body left/right swap
+    (the person read as facing away) restarts the track facing as before the loss, not turned
+    round, with ``reinit_keep_facing``; with 0 (the default), or after a user's ``reset``, it
+    turns round."""
+    flip = _tracker._BODY_FLIP
+    swapped = (seq.depth[1], seq.keypoints2d[1][flip], seq.confidence[1][flip])
+
+    def left(params):  # the body's left-right axis in the camera frame
+        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+
+    plain = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
+    assert plain.initialize(seq.depth[1], seq.keypoints2d[1], seq.confidence[1])
+    for keep in (15, 0):
+        tracker = pt.Tracker(seq.intrinsics, LVM.replace(reinit_keep_facing=keep), mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        tracker._drop_track()  # what lost_patience lost frames in a row do
+        assert tracker.initialize(*swapped)
+        after = np.asarray(tracker.state.best)
+        assert tracker.reinit_flips == (1 if keep else 0)
+        if keep:  # the swap undone: the pose the true labels give
+            assert left(before) @ left(after) > 0.5
+            np.testing.assert_allclose(after, np.asarray(plain.state.best), atol=1e-5)
+        else:
+            assert left(before) @ left(after) < -0.5
+    tracker = pt.Tracker(seq.intrinsics, LVM.replace(reinit_keep_facing=15), mode="per-frame")
+    tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
+    tracker.reset()  # a new person: nothing to keep
+    assert tracker.initialize(*swapped) and tracker.reinit_flips == 0
+    with pytest.raises(ValueError, match="reinit_keep_facing"):
+        TrackerConfig(reinit_keep_facing=-1)
+
+
+def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
+    """The 2D half of the re-initialisation's facing test: a whole-body swap's shoulders and
+    hips sit on the other side's last positions; a limb's swap, or a frame where neither
+    shoulders nor hips are seen in both, is not read as one."""
+    kp, conf = seq.keypoints2d[0], seq.confidence[0]
+    later = seq.keypoints2d[2]  # the person moved a little
+    assert _tracker.exchanged_since(kp, conf, later[_tracker._BODY_FLIP], conf)
+    assert not _tracker.exchanged_since(kp, conf, later, conf)
+    arms = pt.SIDE_GROUPS["arms"]
+    limb = np.arange(18)
+    for r, l in arms:
+        limb[[r, l]] = limb[[l, r]]
+    assert not _tracker.exchanged_since(kp, conf, later[limb], conf)
+    unseen = conf.copy()
+    unseen[[2, 5, 8, 11]] = 0.0
+    assert not _tracker.exchanged_since(kp, conf, later[_tracker._BODY_FLIP], unseen)
+
+
 def test_paper_config_is_the_paper_method_alone():
     """``TrackerConfig.paper`` switches off every addition of this project; ``recommended``
     keeps the paper's (N, r, R) with them on."""
