@@ -1868,11 +1868,11 @@ def exchanged_since(
     (confidence above 0.1), the image distances with the labels exchanged are the smaller.
     False where neither pair is seen in both."""
     a = b = 0.0
-    for r, l in _TORSO_PAIRS:
-        if min(conf_then[r], conf_then[l], conf_now[r], conf_now[l]) <= 0.1:
+    for r, s in _TORSO_PAIRS:  # right, left
+        if min(conf_then[r], conf_then[s], conf_now[r], conf_now[s]) <= 0.1:
             continue
-        a += np.linalg.norm(kp_now[r] - kp_then[r]) + np.linalg.norm(kp_now[l] - kp_then[l])
-        b += np.linalg.norm(kp_now[r] - kp_then[l]) + np.linalg.norm(kp_now[l] - kp_then[r])
+        a += np.linalg.norm(kp_now[r] - kp_then[r]) + np.linalg.norm(kp_now[s] - kp_then[s])
+        b += np.linalg.norm(kp_now[r] - kp_then[s]) + np.linalg.norm(kp_now[s] - kp_then[r])
     return bool(b < a)
 
 

@@ -198,8 +198,8 @@ def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
     assert not _tracker.exchanged_since(kp, conf, later, conf)
     arms = pt.SIDE_GROUPS["arms"]
     limb = np.arange(18)
-    for r, l in arms:
-        limb[[r, l]] = limb[[l, r]]
+    for right, left_ in arms:
+        limb[[right, left_]] = limb[[left_, right]]
     assert not _tracker.exchanged_since(kp, conf, later[limb], conf)
     unseen = conf.copy()
     unseen[[2, 5, 8, 11]] = 0.0
