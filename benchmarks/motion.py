@@ -46,6 +46,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --offline-only ...  # LVM and the offline default only
     python benchmarks/motion.py --refit-only ...    # both defaults, refit after / in the batch
     python benchmarks/motion.py --refit-only --online-only ...  # the online pair only
+    python benchmarks/motion.py --facing-only ...   # both defaults, re-init keeping facing too
 
 Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
 rows estimate (the in-batch refit gives up on more frames of some wide clips).
@@ -77,7 +78,8 @@ ROWS = (
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
     "MHT_h offline, duplicates kept", f"MHT_h online L={LAG}, torso as detected",
     "MHT_h offline, torso relabelled too", "MHT_h offline, refit in the batch",
-    f"MHT_h online L={LAG}, refit in the batch",
+    f"MHT_h online L={LAG}, refit in the batch", "MHT_h offline, facing kept",
+    f"MHT_h online L={LAG}, facing kept",
 )  # fmt: skip
 
 
@@ -106,6 +108,13 @@ REFIT_ROWS = (
 )  # fmt: skip
 #: ``--refit-only --online-only``: the online rows of :data:`REFIT_ROWS` (2026-11-28 evening).
 REFIT_ONLINE_ROWS = ("LVM", f"MHT_h online L={LAG}", f"MHT_h online L={LAG}, refit in the batch")
+#: ``--facing-only``: LVM and both defaults (offline, online at lag 3), each also with a
+#: re-initialisation after a loss that keeps the lost track's facing where the detections
+#: turned round (``TrackerConfig(reinit_keep_facing=15)``; a candidate default, 2026-11-28).
+FACING_ROWS = (
+    "LVM", "MHT_h offline", "MHT_h offline, facing kept", f"MHT_h online L={LAG}",
+    f"MHT_h online L={LAG}, facing kept",
+)  # fmt: skip
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
 
@@ -119,6 +128,7 @@ def run_clip(
     online_only: bool = False,
     offline_only: bool = False,
     refit_only: bool = False,
+    facing_only: bool = False,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -130,6 +140,16 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
+    if facing_only:
+        keep = pt.TrackerConfig(reinit_keep_facing=15)
+        res = pt.track(*args, seq.intrinsics)
+        out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
+        out["MHT_h offline, facing kept"] = pt.track(*args, seq.intrinsics, keep).keypoints3d
+        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        out[f"MHT_h online L={LAG}, facing kept"] = pt.track(
+            *args, seq.intrinsics, keep, mode="online"
+        ).keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
     # The consensus refit inside the batch (TrackerConfig.consensus_in_batch; opt-in).
     in_batch = pt.TrackerConfig(consensus_in_batch=True)
     if refit_only or not (online_only or offline_only):
@@ -270,12 +290,20 @@ def main() -> int:
         "inside the batch (TrackerConfig(consensus_in_batch=True)); with --online-only the "
         "online pair only",
     )  # fmt: skip
+    ap.add_argument(
+        "--facing-only", action="store_true",
+        help="LVM and the offline and online defaults, each also with a re-initialisation "
+        "that keeps the lost track's facing (TrackerConfig(reinit_keep_facing=15))",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
     if a.offline_only + a.refit_only > 1 or a.online_only + a.offline_only > 1:
         ap.error("--offline-only excludes --online-only and --refit-only")
+    if a.facing_only and (a.online_only or a.offline_only or a.refit_only):
+        ap.error("--facing-only excludes --online-only, --offline-only and --refit-only")
     names = (
-        REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
+        FACING_ROWS if a.facing_only
+        else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
         else OFFLINE_ROWS if a.offline_only else REFIT_ROWS if a.refit_only else ROWS
     )  # fmt: skip
     clips = 3 if a.quick else a.clips
@@ -298,7 +326,7 @@ def main() -> int:
         for occ in (0, 2):
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
-                a.refit_only,
+                a.refit_only, a.facing_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -359,7 +387,8 @@ def main() -> int:
             if pair and all(x is not None for x in pair):
                 summary[cond][name]["D_pair_mm"] = float(np.mean(pair))
     costs = [c["cost"] for c in per_clip]
-    cost = {} if a.offline_only or a.refit_only else {
+    few_costs = a.refit_only or a.facing_only  # the step's time only
+    cost = {} if a.offline_only or few_costs else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
         "online_retracked_share_mean": float(np.mean([c["online_retracked_share"] for c in costs])),
@@ -367,7 +396,7 @@ def main() -> int:
         # Online: the body shape refinement, once, after 60 tracked frames (a pause of update()).
         "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
     }  # fmt: skip
-    if not (a.online_only or a.refit_only):
+    if not (a.online_only or few_costs):
         step = float(np.median([c["step_ms"] for c in costs]))
         cost.update({
             "step_ms": step,
@@ -392,7 +421,7 @@ def main() -> int:
         ) / step
     if a.offline_only:
         cost["detections_dropped"] = int(np.sum([c["dropped"] for c in costs]))
-    elif not (a.online_only or a.refit_only):
+    elif not (a.online_only or few_costs):
         cost["online_total_over_step"] = (
             (cost["online_step_ms"] + cost["online_ms_per_frame"])
             * (1 + cost["online_retracked_share_mean"])
@@ -421,14 +450,14 @@ def main() -> int:
             f"+{cost['sides_ms_per_frame']:.1f} ms, {100 * cost['retracked_share_mean']:.0f} % "
             f"of the frames tracked twice; {cost['detections_dropped']} detections dropped"
         )
-    elif a.online_only and not a.refit_only:
+    elif a.online_only and not few_costs:
         print(
             f"\ncost per frame: online step {cost['online_step_ms']:.1f} ms, online model "
             f"+{cost['online_ms_per_frame']:.1f} ms, "
             f"{100 * cost['online_retracked_share_mean']:.0f} % of the frames tracked twice; "
             f"body shape refinement {cost['online_refine_s_median']:.1f} s once (median)"
         )
-    elif not a.refit_only:
+    elif not few_costs:
         print(
             f"\ncost per frame: step {step:.1f} ms; offline smoother "
             f"+{cost['offline_ms_per_frame']:.1f} ms median, {cost['offline_ms_per_frame_min']:.1f}"
@@ -448,7 +477,7 @@ def main() -> int:
         "summary": summary, "cost": cost, "clips": per_clip, "frames": a.frames,
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
-        "offline_only": a.offline_only, "refit_only": a.refit_only,
+        "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

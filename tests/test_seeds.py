@@ -126,3 +126,24 @@ def test_the_wide_factor_runs_put_back_one_factor_each(seeds):
     np.testing.assert_array_equal(
         wf.generate(150, "walk", 0, "wide", frames=6).keypoints2d, clip["wide"].keypoints2d
     )
+
+
+def test_the_facing_runs_count_turned_round_frames_on_tuning_seeds_only(seeds, monkeypatch):
+    """benchmarks/facing.py: the facing error is the angle about the vertical between the
+    estimated and the true shoulder line (a body turned round: 180 degrees, a lean: 0), and
+    the script refuses seeds outside the tuning range before tracking anything."""
+    fc = load("facing")
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(5, 18, 3))
+    turned = truth.copy()
+    turned[:, :, [0, 2]] *= -1  # 180 degrees about the camera's vertical (y) axis
+    leaning = truth.copy()
+    leaning[:, :, 1] += rng.normal(size=(5, 18))  # heights change, the facing does not
+    np.testing.assert_allclose(fc.facing_error_deg(turned, truth), 180.0, atol=1e-6)
+    np.testing.assert_allclose(fc.facing_error_deg(leaning, truth), 0.0, atol=1e-6)
+    nan = truth.copy()
+    nan[2] = np.nan
+    assert np.isnan(fc.facing_error_deg(nan, truth)[2])
+    monkeypatch.setattr(sys, "argv", ["facing.py", "--seeds", "0-3"])
+    with pytest.raises(SystemExit):
+        fc.main()
