@@ -1017,26 +1017,25 @@ class Tracker:
         # The very first start may be partial (heavily occluded sequences must start somehow);
         # a re-initialisation after a loss waits for a torso, since a partial restart that
         # throws away the track's history was measured to do more harm than good.
-        p0 = initial_pose(
-            np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
-            allow_partial=not self._ever_initialized,
-        )  # fmt: skip
-        if p0 is None:
-            return False
-        if self._turned_since_drop(p0, kp, conf):
+        def start(lm):
+            return initial_pose(
+                np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
+                allow_partial=not self._ever_initialized,
+            )  # fmt: skip
+
+        p0 = start(lm)
+        if p0 is not None and self._turned_since_drop(p0, kp, conf):
             # Read as facing away right after a loss: a detector's whole-body swap, not a
             # person turned round unseen. Start on the landmarks with left and right exchanged
             # (and, online, go on relabelling them until the labelling sees the swap end).
             lm = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
-            p0 = initial_pose(
-                np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
-                allow_partial=not self._ever_initialized,
-            )  # fmt: skip
-            if p0 is None:
-                return False
-            self.reinit_flips += 1
-            if self._labeller is not None and self.mode == "online":
-                self._labeller.reset(first=np.ones(len(self.exchanged), bool))
+            p0 = start(lm)
+            if p0 is not None:
+                self.reinit_flips += 1
+                if self._labeller is not None and self.mode == "online":
+                    self._labeller.reset(first=np.ones(len(self.exchanged), bool))
+        if p0 is None:
+            return False
         t0 = time.perf_counter()
         res, kps, keys = initial_fit(
             self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
