@@ -78,8 +78,7 @@ ROWS = (
     f"MHT_h online L={LAG}, refined once", f"MHT_h online L={LAG}, duplicates kept",
     "MHT_h offline, duplicates kept", f"MHT_h online L={LAG}, torso as detected",
     "MHT_h offline, torso relabelled too", "MHT_h offline, refit in the batch",
-    f"MHT_h online L={LAG}, refit in the batch", "MHT_h offline, facing kept",
-    f"MHT_h online L={LAG}, facing kept",
+    f"MHT_h online L={LAG}, refit in the batch",
 )  # fmt: skip
 
 
