@@ -40,6 +40,8 @@ CONFIGS = {
     "shipped": pt.TrackerConfig(),
     "facing kept at re-initialisation": pt.TrackerConfig(reinit_keep_facing=15),
 }
+#: The second configuration's name (``--keep`` changes its ``reinit_keep_facing``).
+KEPT = "facing kept at re-initialisation"
 
 
 def facing_error_deg(keypoints3d: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -87,9 +89,13 @@ def main() -> int:
     ap.add_argument("--occlusion", type=int, default=0)
     ap.add_argument("--part", type=int, default=0)
     ap.add_argument("--parts", type=int, default=1)
+    ap.add_argument(
+        "--keep", type=int, default=15, help="reinit_keep_facing of the second configuration"
+    )
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "facing.json"))
     a = ap.parse_args()
+    CONFIGS[KEPT] = pt.TrackerConfig(reinit_keep_facing=a.keep)
     if a.merge:
         runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     else:
@@ -126,7 +132,8 @@ def main() -> int:
                   f"{', '.join(off)}")  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps({
-        "benchmark": "facing", "table": table, "runs": runs, "machine": machine_info(),
+        "benchmark": "facing", "keep": a.keep, "table": table, "runs": runs,
+        "machine": machine_info(),
     }, indent=1))  # fmt: skip
     print(f"wrote {a.out}")
     return 0
