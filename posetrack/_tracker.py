@@ -631,7 +631,7 @@ class Tracker:
         self._floor = device_f32(NO_FLOOR)
         self._lost_run = 0
         self._ever_initialized = False
-        # (frame, pose, last tracked keypoints) of the last track loss: a quick
+        # (frame, state, last tracked keypoints) of the last track loss: a quick
         # re-initialisation keeps its facing; the followed person's keypoints (18, 2) and
         # confidences (18,) as fitted in the last tracked frame.
         self._dropped: tuple | None = None
@@ -887,7 +887,8 @@ class Tracker:
     def _drop_track(self) -> None:
         """Forget the hypotheses after a loss; keep who is followed."""
         if self._state is not None:  # the facing a quick re-initialisation keeps
-            self._dropped = (self._frames_seen, self._state.best, self._last_tracked_kp)
+            # The state itself: inside track_many it is the batch's pending result.
+            self._dropped = (self._frames_seen, self._state, self._last_tracked_kp)
         self._state = None
         self._lost_run = 0
         if self._labeller is not None:
@@ -1076,7 +1077,7 @@ class Tracker:
             return False
         if not exchanged_since(*last, kp, conf):
             return False
-        before = np.asarray(resolve(before), np.float64)
+        before = np.asarray(resolve(before).best, np.float64)
         left_now = quat_to_matrix(np.asarray(p0[3:7], np.float64))[:, 0]
         left_before = quat_to_matrix(before[3:7])[:, 0]
         return bool(np.dot(left_now, left_before) < 0)
