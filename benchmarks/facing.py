@@ -23,6 +23,7 @@ kept the facing, and the clips that differ by more than 1 mm. Tuning seeds only.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -36,11 +37,26 @@ import posetrack as pt
 from posetrack.app import machine_info
 
 MODES = ("offline", "online")
-#: The configurations compared: the shipped one, and ``reinit_keep_facing=keep`` (``--keep``).
+#: The configurations compared: the shipped one, and a candidate: ``reinit_keep_facing=keep``
+#: (``--keep``), or with ``--neck W`` the soft limit on the head's turn
+#: (``ResidualSettings(neck_limit=W)`` in the fit of every hypothesis and the initialisation).
 NAMES = ("shipped", "facing kept at re-initialisation")
+NECK_NAME = "neck turn limited"
 
 
-def configs(keep: int) -> dict[str, pt.TrackerConfig]:
+def neck_config(weight: float) -> pt.TrackerConfig:
+    """The shipped configuration with the fit's neck limit at ``weight``."""
+    fit = pt.TrackerConfig().fit
+    return pt.TrackerConfig(
+        fit=dataclasses.replace(
+            fit, residuals=dataclasses.replace(fit.residuals, neck_limit=weight)
+        )
+    )
+
+
+def configs(keep: int, neck: float = 0.0) -> dict[str, pt.TrackerConfig]:
+    if neck > 0:
+        return {NAMES[0]: pt.TrackerConfig(), NECK_NAME: neck_config(neck)}
     return dict(zip(NAMES, (pt.TrackerConfig(), pt.TrackerConfig(reinit_keep_facing=keep))))
 
 
@@ -56,7 +72,7 @@ def facing_error_deg(keypoints3d: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.degrees(np.abs(np.angle(np.exp(1j * d))))
 
 
-def track_clip(seed: int, occlusion: int, keep: int = 15) -> list[dict]:
+def track_clip(seed: int, occlusion: int, keep: int = 15, neck: float = 0.0) -> list[dict]:
     """One clip tracked in each mode with each configuration."""
     motion = REAL[seed % len(REAL)]
     seq = pt.synth.generate(
@@ -65,7 +81,7 @@ def track_clip(seed: int, occlusion: int, keep: int = 15) -> list[dict]:
     )  # fmt: skip
     runs = []
     for mode in MODES:
-        for name, config in configs(keep).items():
+        for name, config in configs(keep, neck).items():
             tracker = pt.Tracker(seq.intrinsics, config, mode=mode)
             res = tracker.run(seq.depth, seq.keypoints2d, seq.confidence)
             turned = facing_error_deg(res.keypoints3d, seq.joints3d)
@@ -92,6 +108,12 @@ def main() -> int:
     ap.add_argument(
         "--keep", type=int, default=15, help="reinit_keep_facing of the second configuration"
     )
+    ap.add_argument(
+        "--neck",
+        type=float,
+        default=0.0,
+        help="candidate: the fit's neck limit at this weight (instead of --keep)",
+    )
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "facing.json"))
     a = ap.parse_args()
@@ -103,7 +125,7 @@ def main() -> int:
             ap.error(f"--seeds: tuning seeds only ({TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1})")
         runs, t0 = [], time.perf_counter()
         for seed in seeds[a.part :: a.parts]:
-            for run in track_clip(seed, a.occlusion, a.keep):
+            for run in track_clip(seed, a.occlusion, a.keep, a.neck):
                 runs.append(run)
                 print(f"[{time.perf_counter() - t0:5.0f}s] {json.dumps(run)}", file=sys.stderr)
     table = {}
@@ -113,7 +135,7 @@ def main() -> int:
     print(f"\n{'mode':8s} {'configuration':38s} {'clips':>5s} {'D mm':>6s} {'turned':>6s} "
           f"{'flips':>5s}  clips > 1 mm off the shipped one")  # fmt: skip
     for mode in MODES:
-        for name in NAMES:
+        for name in (*NAMES, NECK_NAME):
             rs = [r for r in runs if r["mode"] == mode and r["config"] == name]
             if not rs:
                 continue
@@ -131,7 +153,7 @@ def main() -> int:
                   f"{', '.join(off)}")  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps({
-        "benchmark": "facing", "keep": a.keep, "table": table, "runs": runs,
+        "benchmark": "facing", "keep": a.keep, "neck": a.neck, "table": table, "runs": runs,
         "machine": machine_info(),
     }, indent=1))  # fmt: skip
     print(f"wrote {a.out}")

@@ -215,6 +215,29 @@ def test_leg_limits_zero_inside_the_range_and_pinned_to_the_model():
     assert np.asarray(leg_limit_residuals(_with_joint(rest, 7, side)))[4] > 0.3
 
 
+def test_neck_limit_costs_only_a_head_turned_past_80_degrees_about_the_torso():
+    """The neck limit reads the model's convention: turning the neck's quaternion about the
+    body's y axis turns the face (the nose goes behind the neck at 180 degrees); up to 80
+    degrees, and any nod or tilt, costs nothing; past it the cost grows with the turn."""
+    from posetrack._residuals import neck_limit_residuals
+
+    shape = B.BodyShape.default()
+    rest = np.zeros(43)
+    rest[3::4] = 1.0
+    kp = np.asarray(B.keypoints(shape, jnp.asarray(rest, jnp.float32)))
+    back = np.asarray(B.keypoints(shape, _with_joint(rest, 1, _about_y(180.0))))
+    assert (kp[0] - kp[1])[2] > 0.08 and (back[0] - back[1])[2] < -0.08  # nose behind
+
+    def cost(quat):
+        return float(neck_limit_residuals(_with_joint(rest, 1, quat))[0])
+
+    assert cost(_about_y(75.0)) == 0.0 and cost(_about_y(-75.0)) == 0.0
+    assert cost(_about_x(60.0)) == 0.0 and cost(S.matrix_to_quat(S.rz(np.radians(40)))) == 0.0
+    turned = [cost(_about_y(d)) for d in (90.0, 130.0, 180.0)]
+    assert 0.0 < turned[0] < turned[1] < turned[2]
+    assert cost(_about_y(-130.0)) == pytest.approx(turned[1], abs=1e-6)
+
+
 def test_leg_limits_choose_the_backward_knee_an_ankle_seen_in_2d_allows(fit_jit):
     """An ankle seen only in 2D fits a shank folded toward the camera as well as the true one
     folded away (the depth ambiguity along its ray). From a start folded 20 degrees forward
