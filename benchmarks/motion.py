@@ -47,6 +47,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --refit-only ...    # both defaults, refit after / in the batch
     python benchmarks/motion.py --refit-only --online-only ...  # the online pair only
     python benchmarks/motion.py --facing-only ...   # both defaults, re-init keeping facing too
+    python benchmarks/motion.py --neck-only 1 ...   # both defaults, head's turn limited too
 
 Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
 rows estimate (the in-batch refit gives up on more frames of some wide clips).
@@ -115,6 +116,12 @@ FACING_ROWS = (
     "LVM", "MHT_h offline", "MHT_h offline, facing kept", f"MHT_h online L={LAG}",
     f"MHT_h online L={LAG}, facing kept",
 )  # fmt: skip
+#: ``--neck-only W``: LVM and both defaults, each also with the fit's soft limit on the head's
+#: turn (``ResidualSettings(neck_limit=W)``; a candidate default, 2026-11-28).
+NECK_ROWS = (
+    "LVM", "MHT_h offline", "MHT_h offline, neck limited", f"MHT_h online L={LAG}",
+    f"MHT_h online L={LAG}, neck limited",
+)  # fmt: skip
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
 
@@ -130,6 +137,7 @@ def run_clip(
     refit_only: bool = False,
     facing_only: bool = False,
     keep: int = 5,
+    neck: float = 0.0,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -141,6 +149,21 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
+    if neck > 0:
+        fit = pt.TrackerConfig().fit
+        limited = pt.TrackerConfig(
+            fit=dataclasses.replace(
+                fit, residuals=dataclasses.replace(fit.residuals, neck_limit=neck)
+            )
+        )
+        res = pt.track(*args, seq.intrinsics)
+        out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
+        out["MHT_h offline, neck limited"] = pt.track(*args, seq.intrinsics, limited).keypoints3d
+        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        out[f"MHT_h online L={LAG}, neck limited"] = pt.track(
+            *args, seq.intrinsics, limited, mode="online"
+        ).keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
     if facing_only:
         kept = pt.TrackerConfig(reinit_keep_facing=keep)
         res = pt.track(*args, seq.intrinsics)
@@ -301,14 +324,21 @@ def main() -> int:
         help="--facing-only: the candidate's reinit_keep_facing (frames after a loss; default 5, "
         "the variant that met its tuning rule on seeds 182-199 / 166-181)",
     )  # fmt: skip
+    ap.add_argument(
+        "--neck-only", type=float, default=0.0, metavar="W",
+        help="LVM and the offline and online defaults, each also with the fit's neck limit at "
+        "weight W (ResidualSettings(neck_limit=W))",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
     if a.offline_only + a.refit_only > 1 or a.online_only + a.offline_only > 1:
         ap.error("--offline-only excludes --online-only and --refit-only")
     if a.facing_only and (a.online_only or a.offline_only or a.refit_only):
         ap.error("--facing-only excludes --online-only, --offline-only and --refit-only")
+    if a.neck_only and (a.online_only or a.offline_only or a.refit_only or a.facing_only):
+        ap.error("--neck-only excludes the other --*-only options")
     names = (
-        FACING_ROWS if a.facing_only
+        NECK_ROWS if a.neck_only else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
         else OFFLINE_ROWS if a.offline_only else REFIT_ROWS if a.refit_only else ROWS
     )  # fmt: skip
@@ -332,7 +362,7 @@ def main() -> int:
         for occ in (0, 2):
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
-                a.refit_only, a.facing_only, a.keep,
+                a.refit_only, a.facing_only, a.keep, a.neck_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -393,7 +423,7 @@ def main() -> int:
             if pair and all(x is not None for x in pair):
                 summary[cond][name]["D_pair_mm"] = float(np.mean(pair))
     costs = [c["cost"] for c in per_clip]
-    few_costs = a.refit_only or a.facing_only  # the step's time only
+    few_costs = a.refit_only or a.facing_only or a.neck_only  # the step's time only
     cost = {} if a.offline_only or few_costs else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
@@ -484,7 +514,7 @@ def main() -> int:
         "seeds": [c["seed"] for c in per_clip[::2]], "truth_jitter_mm": truth_jit,
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
-        "keep": a.keep if a.facing_only else None,
+        "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
