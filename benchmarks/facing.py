@@ -10,8 +10,10 @@ vertical, between the estimated and the true right-to-left shoulder direction.
 
 Tracks wide real-motion tuning clips (``tune.REAL``, ``variety="wide"``, 120 frames at 30 fps,
 320x240; motion ``REAL[seed % 8]``) offline and online with the shipped configuration and with
-``TrackerConfig(reinit_keep_facing=15)`` (a re-initialisation within 15 frames of a loss keeps
-the lost track's facing where the detections turned round; a candidate default), and prints
+a candidate: ``TrackerConfig(reinit_keep_facing=N)`` (``--keep N``: a re-initialisation within
+N frames of a loss keeps the lost track's facing where the detections turned round; 5 is the
+default since 2026-11-28, so compare other windows), or the fit's soft limit on the head's
+turn (``--neck W``: ``ResidualSettings(neck_limit=W)``), and prints
 per configuration and mode the mean D, the turned-round frames, the re-initialisations that
 kept the facing, and the clips that differ by more than 1 mm. Tuning seeds only.
 

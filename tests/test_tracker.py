@@ -157,7 +157,7 @@ def test_config_fit_default_depends_on_method():
 def test_a_quick_reinitialisation_keeps_the_lost_tracks_facing(seq):
     """Right after a track loss, a frame whose detections are a whole-body left/right swap
     (the person read as facing away) restarts the track facing as before the loss, not turned
-    round, with ``reinit_keep_facing``; with 0 (the default), or after a user's ``reset``, it
+    round, with ``reinit_keep_facing`` (5 by default); with 0, or after a user's ``reset``, it
     turns round."""
     flip = _tracker._BODY_FLIP
     swapped = (seq.depth[1], seq.keypoints2d[1][flip], seq.confidence[1][flip])
