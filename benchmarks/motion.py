@@ -64,6 +64,7 @@ from pathlib import Path
 
 import numpy as np
 from accuracy import REAL  # the reported real-capture clips (tune.py tunes on others)
+from facing import neck_config  # the fit's neck limit, as facing.py --neck measures it
 from seeds import REPORT_SEEDS
 
 import posetrack as pt
@@ -149,29 +150,20 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
-    if neck > 0:
-        fit = pt.TrackerConfig().fit
-        limited = pt.TrackerConfig(
-            fit=dataclasses.replace(
-                fit, residuals=dataclasses.replace(fit.residuals, neck_limit=neck)
-            )
-        )
+    # One candidate beside both defaults: the fit's neck limit, or the facing guard's window.
+    candidate = (
+        (", neck limited", neck_config(neck)) if neck > 0
+        else (", facing kept", pt.TrackerConfig(reinit_keep_facing=keep)) if facing_only
+        else None
+    )  # fmt: skip
+    if candidate is not None:
+        suffix, config = candidate
         res = pt.track(*args, seq.intrinsics)
         out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
-        out["MHT_h offline, neck limited"] = pt.track(*args, seq.intrinsics, limited).keypoints3d
+        out["MHT_h offline" + suffix] = pt.track(*args, seq.intrinsics, config).keypoints3d
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
-        out[f"MHT_h online L={LAG}, neck limited"] = pt.track(
-            *args, seq.intrinsics, limited, mode="online"
-        ).keypoints3d
-        return {"truth": seq.joints3d, "est": out, "cost": cost}
-    if facing_only:
-        kept = pt.TrackerConfig(reinit_keep_facing=keep)
-        res = pt.track(*args, seq.intrinsics)
-        out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
-        out["MHT_h offline, facing kept"] = pt.track(*args, seq.intrinsics, kept).keypoints3d
-        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
-        out[f"MHT_h online L={LAG}, facing kept"] = pt.track(
-            *args, seq.intrinsics, kept, mode="online"
+        out[f"MHT_h online L={LAG}" + suffix] = pt.track(
+            *args, seq.intrinsics, config, mode="online"
         ).keypoints3d
         return {"truth": seq.joints3d, "est": out, "cost": cost}
     # The consensus refit inside the batch (TrackerConfig.consensus_in_batch; opt-in).
