@@ -636,9 +636,11 @@ class Tracker:
         # confidences (18,) as fitted in the last tracked frame.
         self._dropped: tuple | None = None
         self._last_tracked_kp: tuple | None = None
-        self.reinit_flips = 0
-        """Re-initialisations that exchanged left and right to keep the lost track's facing
-        (``TrackerConfig.reinit_keep_facing``)."""
+        self.reinit_flip_frames: tuple[int, ...] = ()
+        """Frames (0-based, as counted by :meth:`update` and :meth:`run`; since the last
+        :meth:`run`) whose re-initialisation exchanged every left/right pair to keep the lost
+        track's facing (``TrackerConfig.reinit_keep_facing``): places where the tracker
+        overrode the detector's labels."""
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
         self.compile_s = 0.0
         self._init_timed = False
@@ -1032,7 +1034,7 @@ class Tracker:
             lm = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
             p0 = start(lm)
             if p0 is not None:
-                self.reinit_flips += 1
+                self.reinit_flip_frames += (max(self._frames_seen - 1, 0),)
                 if self._labeller is not None and self.mode == "online":
                     self._labeller.reset(first=np.ones(len(self.exchanged), bool))
         if p0 is None:
@@ -1129,6 +1131,12 @@ class Tracker:
         if not self._arbitrates_online:
             return self._update_once(depth, keypoints2d, confidence)
         return self._update_arbitrated(depth, keypoints2d, confidence)
+
+    @property
+    def reinit_flips(self) -> int:
+        """How many re-initialisations kept the lost track's facing
+        (:attr:`reinit_flip_frames`)."""
+        return len(self.reinit_flip_frames)
 
     @property
     def _arbitrates_online(self) -> bool:
@@ -1375,6 +1383,7 @@ class Tracker:
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
         self.side_spans, self._judged_rows = [], None
+        self.reinit_flip_frames = ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
@@ -1738,7 +1747,7 @@ class Tracker:
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
             self._key, self._frames_seen,
             copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
-            copy.deepcopy(self._duplicate_filter), self._dropped, self.reinit_flips,
+            copy.deepcopy(self._duplicate_filter), self._dropped, self.reinit_flip_frames,
             self._last_tracked_kp,
         )  # fmt: skip
 
@@ -1746,7 +1755,7 @@ class Tracker:
         (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
             self._key, self._frames_seen, follower, labeller, duplicate_filter, self._dropped,
-            self.reinit_flips, self._last_tracked_kp,
+            self.reinit_flip_frames, self._last_tracked_kp,
         ) = snap  # fmt: skip
         keep = {id(self.intrinsics): self.intrinsics}
         self._follower = copy.deepcopy(follower, keep)

@@ -215,6 +215,8 @@ def test_summary_and_printout(cli, poses):
     assert summary["inputs"]["fix_sides"] is True and set(summary["sides_exchanged"]) == {
         "arms", "legs"
     }
+    # No track loss on the clean clip: no re-initialisation overrode the detector's labels.
+    assert summary["facing_kept_at_reinit"] == [] and "keeping the lost track" not in cli.stdout
     # Offline: per limb, the frames the motion model started from the neighbours' pose.
     assert set(summary["limbs_interpolated"]) == set(posetrack.LIMB_NAMES)
     assert all(isinstance(n, int) for n in summary["limbs_interpolated"].values())

@@ -180,6 +180,13 @@ def test_a_quick_reinitialisation_keeps_the_lost_tracks_facing(seq):
             np.testing.assert_allclose(after, np.asarray(plain.state.best), atol=1e-5)
         else:
             assert left(before) @ left(after) < -0.5
+    # Through update(): the frame's index is recorded (where the detector's labels were
+    # overridden), and the count follows it.
+    tracker = pt.Tracker(seq.intrinsics, LVM.replace(reinit_keep_facing=5), mode="per-frame")
+    tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
+    tracker._drop_track()
+    tracker.update(*swapped)
+    assert tracker.reinit_flip_frames == (1,) and tracker.reinit_flips == 1
     tracker = pt.Tracker(seq.intrinsics, LVM.replace(reinit_keep_facing=15), mode="per-frame")
     tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])
     tracker.reset()  # a new person: nothing to keep

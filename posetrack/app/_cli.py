@@ -253,6 +253,9 @@ def _track(args) -> int:
         "frame_timestamps": None if rec.timestamps is None else rec.timestamps.tolist(),
         "person": person,
         "sides_exchanged": undone,
+        # Frames (0-based indices) whose re-initialisation read every left/right pair
+        # exchanged to keep the lost track's facing (TrackerConfig.reinit_keep_facing).
+        "facing_kept_at_reinit": list(tracker.reinit_flip_frames),
         # Offline: frames where a limb's per-frame pose followed a doubtful keypoint jump and
         # the motion model started it from its neighbours' pose (null: no offline smoothing).
         "limbs_interpolated": interpolated,
@@ -299,6 +302,11 @@ def _track(args) -> int:
     if undone and any(undone.values()):
         listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
         print(f"left/right swaps of the detector undone (frames): {listed}")
+    if tracker.reinit_flip_frames:
+        print(
+            "re-initialised with every left/right pair exchanged, keeping the lost track's "
+            f"facing (frames): {', '.join(map(str, tracker.reinit_flip_frames))}"
+        )
     if tracker.duplicates_dropped:
         print(
             f"keypoint detections dropped (jumped onto another keypoint): "
