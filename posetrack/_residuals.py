@@ -146,6 +146,14 @@ KNEE_HYPER_MAX_DEG = 0.0
 KNEE_SIDE_MAX_DEG = 15.0
 
 
+def _twist_beyond(q: Float[Array, "*batch 4"], max_deg: float) -> Float[Array, "*batch"]:
+    """How far a unit quaternion's twist about the body's y axis (swing-twist decomposition)
+    exceeds ``max_deg`` either way: ``max(0, |sin(twist/2)| - sin(max_deg/2))``."""
+    w, y = q[..., 0], q[..., 2]
+    half_twist = jnp.abs(y) / jnp.sqrt(w * w + y * y + 1e-12)
+    return jax.nn.relu(half_twist - jnp.sin(jnp.radians(max_deg) / 2))
+
+
 def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     """Soft anatomical limits of the legs, zero inside the range (not in the paper).
 
@@ -166,10 +174,7 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     The knee's own twist moves no keypoint or surface and stays free.
     """
     q = quat_normalize(params[3:].reshape(NUM_JOINTS, 4))
-    hip = q[jnp.array(_HIPS)]
-    w, y = hip[:, 0], hip[:, 2]
-    half_twist = jnp.abs(y) / jnp.sqrt(w * w + y * y + 1e-12)
-    twist = jax.nn.relu(half_twist - jnp.sin(jnp.radians(HIP_TWIST_MAX_DEG) / 2))
+    twist = _twist_beyond(q[jnp.array(_HIPS)], HIP_TWIST_MAX_DEG)
     d = -quat_to_matrix(q[jnp.array(_KNEES)])[:, :, 1]  # R @ (0, -1, 0): the shank's direction
     d_x, d_z = d[:, 0], d[:, 2]
     forward = jax.nn.relu(d_z - jnp.sin(jnp.radians(KNEE_HYPER_MAX_DEG)))
@@ -196,6 +201,4 @@ def neck_limit_residuals(params: Float[Array, 43]) -> Float[Array, 1]:
     torso, the truth's never more than 11). With the limit, a turned torso costs the nose.
     """
     q = quat_normalize(params[3 + 4 * _NECK : 7 + 4 * _NECK])
-    w, y = q[0], q[2]
-    half_twist = jnp.abs(y) / jnp.sqrt(w * w + y * y + 1e-12)
-    return jax.nn.relu(half_twist - jnp.sin(jnp.radians(NECK_TWIST_MAX_DEG) / 2))[None]
+    return _twist_beyond(q, NECK_TWIST_MAX_DEG)[None]
