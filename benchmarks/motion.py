@@ -48,6 +48,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --refit-only --online-only ...  # the online pair only
     python benchmarks/motion.py --facing-only ...   # both defaults, re-init keeping facing too
     python benchmarks/motion.py --neck-only 1 ...   # both defaults, head's turn limited too
+    python benchmarks/motion.py --defaults-only ... # LVM and both defaults only
 
 Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
 rows estimate (the in-batch refit gives up on more frames of some wide clips).
@@ -123,6 +124,10 @@ NECK_ROWS = (
     "LVM", "MHT_h offline", "MHT_h offline, neck limited", f"MHT_h online L={LAG}",
     f"MHT_h online L={LAG}, neck limited",
 )  # fmt: skip
+#: ``--defaults-only``: LVM and both defaults (offline, online at lag 3), nothing else: the
+#: before/after of a change to the defaults themselves, read beside an earlier run's rows
+#: (2026-11-28, the loss tests for a far, jittery person).
+DEFAULT_ROWS = ("LVM", "MHT_h offline", f"MHT_h online L={LAG}")
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
 
@@ -139,6 +144,7 @@ def run_clip(
     facing_only: bool = False,
     keep: int = 5,
     neck: float = 0.0,
+    defaults_only: bool = False,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -150,6 +156,11 @@ def run_clip(
     out: dict[str, np.ndarray] = {}
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
+    if defaults_only:
+        res = pt.track(*args, seq.intrinsics)
+        out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
+        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
     # One candidate beside both defaults: the fit's neck limit, or the facing guard's window.
     candidate = (
         (", neck limited", neck_config(neck)) if neck > 0
@@ -321,8 +332,17 @@ def main() -> int:
         help="LVM and the offline and online defaults, each also with the fit's neck limit at "
         "weight W (ResidualSettings(neck_limit=W))",
     )  # fmt: skip
+    ap.add_argument(
+        "--defaults-only", action="store_true",
+        help="LVM and the offline and online defaults only (a change to the defaults, read "
+        "beside an earlier run)",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
+    if a.defaults_only and (
+        a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
+    ):
+        ap.error("--defaults-only excludes the other --*-only options")
     if a.offline_only + a.refit_only > 1 or a.online_only + a.offline_only > 1:
         ap.error("--offline-only excludes --online-only and --refit-only")
     if a.facing_only and (a.online_only or a.offline_only or a.refit_only):
@@ -330,7 +350,8 @@ def main() -> int:
     if a.neck_only and (a.online_only or a.offline_only or a.refit_only or a.facing_only):
         ap.error("--neck-only excludes the other --*-only options")
     names = (
-        NECK_ROWS if a.neck_only else FACING_ROWS if a.facing_only
+        DEFAULT_ROWS if a.defaults_only
+        else NECK_ROWS if a.neck_only else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
         else OFFLINE_ROWS if a.offline_only else REFIT_ROWS if a.refit_only else ROWS
     )  # fmt: skip
@@ -354,7 +375,7 @@ def main() -> int:
         for occ in (0, 2):
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
-                a.refit_only, a.facing_only, a.keep, a.neck_only,
+                a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -415,7 +436,7 @@ def main() -> int:
             if pair and all(x is not None for x in pair):
                 summary[cond][name]["D_pair_mm"] = float(np.mean(pair))
     costs = [c["cost"] for c in per_clip]
-    few_costs = a.refit_only or a.facing_only or a.neck_only  # the step's time only
+    few_costs = a.refit_only or a.facing_only or a.neck_only or a.defaults_only  # step only
     cost = {} if a.offline_only or few_costs else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
@@ -507,6 +528,7 @@ def main() -> int:
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
+        "defaults_only": a.defaults_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)

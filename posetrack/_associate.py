@@ -267,10 +267,17 @@ def match_costs(
 ) -> np.ndarray:
     """How far each detection is from the tracked person, metres (``inf`` if not comparable).
 
-    The median over keypoints of: the 3D distance between the lifted keypoint and the
-    reference keypoint where the detection has depth; the 2D distance between the keypoint and
-    the reference's projection, times the reference depth over the focal length, where it has
-    not. The median ignores a few wrong keypoints (detector outliers, one swapped limb).
+    The smaller of two readings. Keypoint by keypoint: the median over keypoints of the 3D
+    distance between the lifted keypoint and the reference keypoint where the detection has
+    depth, and of the 2D distance between the keypoint and the reference's projection, times
+    the reference depth over the focal length, where it has not; the median ignores a few
+    wrong keypoints (detector outliers, one swapped limb). The body as a whole: the median of
+    those 2D distances over all keypoints, combined (root of the sum of squares) with the
+    difference between the detection's and the reference's median lifted depth over the
+    keypoints both have; it holds where many keypoints are lifted off the body (a far person
+    with a jittery detector: a keypoint a few pixels off a thin limb is lifted onto the wall
+    behind it, in the detection and in the reference alike). Another person is a body width
+    away in the image or in depth, so both readings keep them apart.
 
     Args:
         cands: the frame's lifted detections.
@@ -293,11 +300,23 @@ def match_costs(
     d = np.where(cands.has_depth, d3, d2)
     usable = cands.detected & ref_ok[None]
     cost = quiet_nanmedian(np.where(usable, d, np.nan), axis=1)
+    # The body as a whole: where its keypoints lie in the image, and its median depth.
+    lateral = quiet_nanmedian(np.where(usable, d2, np.nan), axis=1)
+    both = usable & cands.has_depth
+    z_cand = quiet_nanmedian(np.where(both, cands.points3d[..., 2], np.nan), axis=1)
+    z_ref = quiet_nanmedian(np.where(both, ref[None, :, 2], np.nan), axis=1)
+    body = np.hypot(lateral, np.where(both.sum(axis=1) >= min_keypoints, z_cand - z_ref, np.nan))
+    cost = np.fmin(cost, body)
     return np.where(usable.sum(axis=1) >= min_keypoints, cost, np.inf)
 
 
-def segment_lengths(points3d: np.ndarray, has_depth: np.ndarray) -> np.ndarray:
-    """Lengths of :data:`SEGMENTS` between lifted keypoints, m; NaN where an end lacks depth.
+def segment_lengths(
+    points3d: np.ndarray, has_depth: np.ndarray, *, depth_band: float = 0.4
+) -> np.ndarray:
+    """Lengths of :data:`SEGMENTS` between lifted keypoints, m; NaN where an end lacks depth
+    or lies more than ``depth_band`` from the person's median lifted depth (a keypoint a few
+    pixels off a far, thin limb is lifted onto the background behind it, which would make
+    the segment a metre long).
 
     Args:
         points3d: ``(..., 18, 3)``. has_depth: ``(..., 18)``.
@@ -308,6 +327,8 @@ def segment_lengths(points3d: np.ndarray, has_depth: np.ndarray) -> np.ndarray:
     a, b = (np.array(i) for i in zip(*SEGMENTS))
     p = np.asarray(points3d, np.float64)
     f = np.asarray(has_depth, bool)
+    z = np.where(f, p[..., 2], np.nan)
+    f = f & (np.abs(z - quiet_nanmedian(z, axis=-1)[..., None]) <= depth_band)
     length = np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
     return np.where(f[..., a] & f[..., b], length, np.nan)
 

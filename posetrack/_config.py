@@ -209,8 +209,11 @@ class TrackerConfig(eqx.Module):
     """A frame whose best Delta exceeds this is 'lost' (host side)."""
     lost_agreement: float = 0.6
     """A frame whose output pose lies within ``consensus_distance`` of fewer than this share of
-    its 3D landmarks is 'lost' (an implausible pose: it explains too little of what is seen;
-    host side)."""
+    its plausible 3D landmarks is 'lost' (an implausible pose: it explains too little of what
+    is seen; host side). Landmarks lifted more than 0.4 m from the landmarks' median depth (a
+    keypoint that missed a far, thin limb, lifted onto the wall behind) do not count
+    (``posetrack._step.landmark_agreement``; since 2026-11-28, benchmarks/README "Loss tests
+    that hold for a far, jittery person")."""
     lost_patience: int = eqx.field(default=5, static=True)
     """Consecutive lost frames before the tracker re-initialises from observations."""
     reinit_keep_facing: int = eqx.field(default=5, static=True)

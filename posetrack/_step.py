@@ -68,8 +68,9 @@ class FrameEstimate(eqx.Module):
     num_3d: Int[Array, ""]
     """Landmarks with depth (sum of F_i)."""
     agreement: Float[Array, ""]
-    """Share of the 3D landmarks within ``consensus_distance`` of the output pose's keypoints
-    (1 when there are none): a pose that explains few of its landmarks is implausible."""
+    """Share of the plausible 3D landmarks within ``consensus_distance`` of the output pose's
+    keypoints (1 when there are none; :func:`landmark_agreement`): a pose that explains few of
+    its landmarks is implausible."""
     num_2d: Int[Array, ""]
     """Detected keypoints (sum of f_i)."""
     spread: Float[Array, " kpt"]
@@ -177,6 +178,28 @@ def consensus_refit(
         chosen, shape, landmarks, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit
     )
     return keep_if_not_worse(refit.params, score(refit.params[None])[0], chosen, chosen_delta)
+
+
+#: Metres from the landmarks' median depth beyond which a 3D landmark is implausible for the
+#: agreement test (:func:`landmark_agreement`).
+PLAUSIBLE_DEPTH_BAND = 0.4
+
+
+def landmark_agreement(
+    keypoints3d: Float[Array, "kpt 3"], lm: Landmarks, distance: Float[Array, ""] | float
+) -> Float[Array, ""]:
+    """The share of plausible 3D landmarks within ``distance`` of ``keypoints3d`` (1 if none).
+
+    Plausible: lifted within :data:`PLAUSIBLE_DEPTH_BAND` of the landmarks' median depth. A
+    keypoint a few pixels off a far, thin limb is lifted onto whatever lies behind it (a wall
+    0.5-1 m back); no pose can agree with it, so it does not count against the pose. The
+    track-loss test (``TrackerConfig.lost_agreement``) reads this.
+    """
+    near = jnp.linalg.norm(keypoints3d - lm.points3d, axis=-1) < distance
+    z = jnp.where(lm.has_depth, lm.points3d[:, 2], jnp.nan)
+    plausible = lm.has_depth & (jnp.abs(z - jnp.nanmedian(z)) <= PLAUSIBLE_DEPTH_BAND)
+    n = jnp.sum(plausible)
+    return jnp.where(n > 0, jnp.sum(near & plausible) / jnp.maximum(n, 1), 1.0)
 
 
 def tracker_step(
@@ -307,10 +330,8 @@ def tracker_step(
         best=chosen,
         key=key_next,
     )
-    out_kps = kps[best]
-    near = jnp.linalg.norm(out_kps - lm.points3d, axis=-1) < config.consensus_distance
     n3 = jnp.sum(lm.has_depth)
-    agreement = jnp.where(n3 > 0, jnp.sum(near & lm.has_depth) / jnp.maximum(n3, 1), 1.0)
+    agreement = landmark_agreement(kps[best], lm, config.consensus_distance)
     est = FrameEstimate(
         params=chosen,
         keypoints3d=kps[best],

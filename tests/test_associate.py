@@ -10,6 +10,8 @@ import pytest
 
 import posetrack as pt
 from posetrack._associate import (
+    SEGMENTS,
+    Candidates,
     other_people_mask,
     quiet_nanmedian,
     segment_lengths,
@@ -196,3 +198,59 @@ def test_quiet_nanmedian_is_numpys_nanmedian_bit_for_bit():
             got = quiet_nanmedian(a, axis)
         assert got.dtype == ref.dtype and got.shape == ref.shape
         np.testing.assert_array_equal(got, ref)
+
+
+def _lifted(points: np.ndarray) -> Candidates:
+    """Candidates whose keypoints are the projections of ``points`` (P, 18, 3), lifted there."""
+    P = points.shape[0]
+    return Candidates(
+        keypoints2d=_project(points).astype(np.float32),
+        confidence=np.full((P, 18), 0.8, np.float32),
+        points3d=points,
+        detected=np.ones((P, 18), bool),
+        has_depth=np.ones((P, 18), bool),
+    )
+
+
+def _onto_wall(points: np.ndarray, which: np.ndarray, wall: float) -> np.ndarray:
+    """``points`` with the keypoints ``which`` moved along their rays to depth ``wall``."""
+    out = points.copy()
+    out[which] *= (wall / points[which, 2])[:, None]
+    return out
+
+
+def test_match_costs_hold_a_far_person_lifted_onto_the_wall_behind():
+    # A person 4 m away, a wall 0.8 m behind: 8 of the detection's keypoints and 8 others of
+    # the reference's missed the thin limbs and were lifted onto the wall.
+    person = _person_at(0.0, 4.0)
+    rng = np.random.default_rng(1)
+    cand_off, ref_off = rng.permutation(18)[:8], rng.permutation(18)[:8]
+    cand = _onto_wall(person, cand_off, 4.8)
+    ref = _onto_wall(person, ref_off, 4.8)
+    near_person = person - np.array([0.0, 0.0, 1.0])  # someone else, 1 m in front, same place
+    aside = person + np.array([0.6, 0.0, 0.0])  # someone else beside, at the same depth
+    c = _lifted(np.stack([cand, near_person, aside]))
+    gate = pt.FollowSettings().gate
+    # Keypoint by keypoint, the wall distances make up the median: the only person in view
+    # would be rejected.
+    d3 = np.linalg.norm(cand - ref, axis=-1)
+    assert np.median(d3) > gate
+    cost = pt.match_costs(c, ref, INTR)
+    assert cost[0] < 0.15 < gate < cost[1]
+    assert cost[2] > gate
+
+
+def test_segment_lengths_skip_keypoints_lifted_off_the_body():
+    person = _person_at(0.0, 4.0)
+    clean = segment_lengths(person, np.ones(18, bool))
+    walled = segment_lengths(_onto_wall(person, np.array([4, 7]), 4.8), np.ones(18, bool))
+    assert np.isfinite(clean).all()
+    # The segments ending at the wrists are not measured; the others are as before.
+    wrist = np.array([4 in s or 7 in s for s in SEGMENTS])
+    assert wrist.sum() >= 2
+    assert np.isnan(walled[wrist]).all()
+    np.testing.assert_array_equal(walled[~wrist], clean[~wrist])
+    # The test can fail: the wall band is what removes them.
+    loose = segment_lengths(_onto_wall(person, np.array([4, 7]), 4.8), np.ones(18, bool),
+                            depth_band=2.0)  # fmt: skip
+    assert np.isfinite(loose).all() and (loose.max() > 0.6)

@@ -24,7 +24,7 @@ from posetrack._geometry import GEOMETRY_PARTNER, part_radii, partner_rest_lengt
 from posetrack._render import DEFAULT_SHARPNESS
 from posetrack._score import DEFAULT_D_M
 from posetrack._select import consensus_set, geometry_distance, landmark_subsets, landmark_weights
-from posetrack._step import TrackState, consensus_refit, reseed_hypotheses
+from posetrack._step import TrackState, consensus_refit, landmark_agreement, reseed_hypotheses
 
 FX = 60.0
 INTR = pt.Intrinsics.create(fx=FX, fy=FX, cx=31.5, cy=23.5, width=64, height=48)
@@ -328,6 +328,28 @@ def test_lvm_selects_every_available_landmark(scene):
     )
     assert (np.asarray(u3) == np.asarray(lm.has_depth)[None]).all()
     assert (np.asarray(u2) == np.asarray(lm.detected)[None]).all()
+
+
+# ---------------------------------------------------------------------------------------------
+# The agreement read by the track-loss test
+
+
+def test_agreement_counts_plausible_landmarks_only(scene):
+    lm, true_kps = scene["lm"], _kps(_true_pose())
+    # 15 landmarks with depth; the right ankle lies 0.63 m behind their median depth in this
+    # pose, so 14 count; the planted elbow is 30 cm off: 13 of 14 agree.
+    assert float(landmark_agreement(true_kps, lm, 0.12)) == pytest.approx(13 / 14)
+    # Three more keypoints missed their thin limbs and were lifted onto a wall 0.8 m behind:
+    # no pose can agree with them, so they leave the count instead of failing the pose.
+    pts = np.asarray(lm.points3d).copy()
+    pts[[4, 12, 13], 2] += 0.8
+    walled = eqx.tree_at(lambda m: m.points3d, lm, jnp.asarray(pts))
+    assert float(landmark_agreement(true_kps, walled, 0.12)) == pytest.approx(10 / 11)
+    # A pose 30 cm off everywhere still agrees with none of the plausible ones.
+    assert float(landmark_agreement(true_kps + 0.3, walled, 0.12)) == 0.0
+    # Nothing with depth: nothing to disagree with.
+    none = eqx.tree_at(lambda m: m.has_depth, lm, jnp.zeros(18, bool))
+    assert float(landmark_agreement(true_kps, none, 0.12)) == 1.0
 
 
 # ---------------------------------------------------------------------------------------------
