@@ -43,6 +43,12 @@ from ._camera import Intrinsics
 PERSON_RULES = ("auto", "largest", "closest")
 PersonRule = Literal["auto", "largest", "closest"] | int
 
+#: Metres from a person's median lifted depth beyond which a lifted keypoint is taken to have
+#: missed the body (a keypoint a few pixels off a far, thin limb reads the wall behind it):
+#: :func:`segment_lengths` skips it, and the tracker's agreement test does not count it
+#: (``posetrack._step.landmark_agreement``).
+PLAUSIBLE_DEPTH_BAND = 0.4
+
 #: Keypoint pairs whose 3D distance describes a body's proportions (COCO-18 indices):
 #: shoulder width, hip width, upper arms, forearms, thighs, shins, neck to each hip.
 SEGMENTS = (
@@ -311,7 +317,7 @@ def match_costs(
 
 
 def segment_lengths(
-    points3d: np.ndarray, has_depth: np.ndarray, *, depth_band: float = 0.4
+    points3d: np.ndarray, has_depth: np.ndarray, *, depth_band: float = PLAUSIBLE_DEPTH_BAND
 ) -> np.ndarray:
     """Lengths of :data:`SEGMENTS` between lifted keypoints, m; NaN where an end lacks depth
     or lies more than ``depth_band`` from the person's median lifted depth (a keypoint a few

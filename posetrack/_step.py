@@ -20,6 +20,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from . import _body as body
+from ._associate import PLAUSIBLE_DEPTH_BAND
 from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
@@ -178,11 +179,6 @@ def consensus_refit(
         chosen, shape, landmarks, intrinsics, use3d=use3d, use2d=use2d, settings=config.fit
     )
     return keep_if_not_worse(refit.params, score(refit.params[None])[0], chosen, chosen_delta)
-
-
-#: Metres from the landmarks' median depth beyond which a 3D landmark is implausible for the
-#: agreement test (:func:`landmark_agreement`).
-PLAUSIBLE_DEPTH_BAND = 0.4
 
 
 def landmark_agreement(
