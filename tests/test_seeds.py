@@ -147,3 +147,27 @@ def test_the_facing_runs_count_turned_round_frames_on_tuning_seeds_only(seeds, m
     monkeypatch.setattr(sys, "argv", ["facing.py", "--seeds", "0-3"])
     with pytest.raises(SystemExit):
         fc.main()
+
+
+def test_the_loss_diagnosis_pairs_frames_and_keeps_to_its_seed_ranges(seeds, monkeypatch):
+    """benchmarks/losses.py: D_pair compares two versions on the frames both estimated only
+    (-1: not estimated), and tuning kinds refuse report seeds (report-real the reverse) before
+    tracking anything."""
+    ls = load("losses")
+
+    def record(err, status, coverage):
+        return {"seed": 100, "occ": 0, "kind": "real", "mode": "offline", "motion": "m",
+                "D": float(np.mean([e for e in err if e >= 0])), "coverage": coverage,
+                "status": status, "err": err}  # fmt: skip
+
+    before = record([10.0, -1.0, -1.0, 30.0], [0, 1, 1, 0], 0.5)
+    after = record([12.0, 90.0, 80.0, 20.0], [0, 1, 0, 0], 1.0)
+    out = ls.compare([before], [after])
+    c = out["clips"][0]
+    assert c["D_pair_before"] == pytest.approx(20.0) and c["D_pair_after"] == pytest.approx(16.0)
+    assert c["D_after"] == pytest.approx(50.5)  # the frames answered only after count in D
+    assert (c["lost_before"], c["lost_after"]) == (2, 1)
+    for argv in (["--kind", "real", "--seeds", "0-3"], ["--kind", "report-real", "--seeds", "100"]):
+        monkeypatch.setattr(sys, "argv", ["losses.py", *argv, "--out", "/nonexistent/x"])
+        with pytest.raises(SystemExit):
+            ls.main()
