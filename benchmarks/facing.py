@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from seeds import TUNING_SEEDS
+from seeds import TUNING_SEEDS, parse_seeds
 from tune import REAL
 
 import posetrack as pt
@@ -96,11 +96,6 @@ def track_clip(seed: int, occlusion: int, keep: int = 15, neck: float = 0.0) -> 
     return runs
 
 
-def _seeds(text: str) -> list[int]:
-    a, _, b = text.partition("-")
-    return list(range(int(a), int(b or a) + 1))
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="158-181", help="tuning seeds, e.g. 158-181")
@@ -122,7 +117,7 @@ def main() -> int:
     if a.merge:
         runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     else:
-        seeds = _seeds(a.seeds)
+        seeds = parse_seeds(a.seeds)
         if not all(s in TUNING_SEEDS for s in seeds):
             ap.error(f"--seeds: tuning seeds only ({TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1})")
         runs, t0 = [], time.perf_counter()

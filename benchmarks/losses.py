@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from accuracy import REAL as REPORT_REAL
-from seeds import REPORT_SEEDS, TUNING_SEEDS
+from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds
 from tune import REAL
 
 import posetrack as pt
@@ -48,18 +48,21 @@ def clip_motion(seed: int, kind: str) -> str:
 
 
 def frame_agreement(res: pt.TrackResult, distance: float) -> np.ndarray:
-    """(T,) the agreement the loss test reads (``posetrack._step.landmark_agreement``), here
-    from the run's per-frame poses and landmarks."""
-    from posetrack._associate import PLAUSIBLE_DEPTH_BAND, quiet_nanmedian
+    """(T,) the agreement the loss test reads (``posetrack._step.landmark_agreement``, the
+    same function), here from the run's per-frame poses and landmarks."""
+    import jax
+
+    from posetrack._step import landmark_agreement
 
     pf = res.keypoints3d if res.per_frame_keypoints3d is None else res.per_frame_keypoints3d
-    near = np.linalg.norm(pf - res.landmarks3d, axis=-1) < distance
-    z = np.where(res.has_depth, res.landmarks3d[..., 2], np.nan)
-    plausible = res.has_depth & (
-        np.abs(z - quiet_nanmedian(z, axis=-1)[:, None]) <= PLAUSIBLE_DEPTH_BAND
-    )
-    n = plausible.sum(-1)
-    return np.where(n > 0, (near & plausible).sum(-1) / np.maximum(n, 1), 1.0)
+    T = len(pf)
+    lms = pt.Landmarks(  # the agreement reads the 3D landmarks and their flags only
+        keypoints2d=np.zeros((T, 18, 2), np.float32), confidence=res.detected.astype(np.float32),
+        points3d=res.landmarks3d.astype(np.float32), detected=res.detected,
+        has_depth=res.has_depth,
+    )  # fmt: skip
+    agree = jax.vmap(landmark_agreement, in_axes=(0, 0, None))(np.nan_to_num(pf), lms, distance)
+    return np.asarray(agree, np.float64)
 
 
 def track_clip(seed: int, occlusion: int, kind: str, mode: str) -> dict:
@@ -116,14 +119,6 @@ def compare(before: list[dict], after: list[dict]) -> dict:
     return {"mean": mean, "clips": clips}
 
 
-def _seeds(text: str) -> list[int]:
-    out = []
-    for part in text.split(","):
-        a, _, b = part.partition("-")
-        out += list(range(int(a), int(b or a) + 1))
-    return out
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--kind", choices=KINDS, default="real")
@@ -155,7 +150,7 @@ def main() -> int:
         return 0
     if not a.out:
         ap.error("--out is required (or --compare)")
-    seeds = _seeds(a.seeds)
+    seeds = parse_seeds(a.seeds)
     allowed = REPORT_SEEDS if a.kind == "report-real" else TUNING_SEEDS
     if not all(s in allowed for s in seeds):
         ap.error(f"--seeds: --kind {a.kind} takes seeds {allowed.start}-{allowed.stop - 1} only")

@@ -25,6 +25,15 @@ TEST_SEEDS = range(500, 600)
 RANGES = {"REPORT_SEEDS": REPORT_SEEDS, "TUNING_SEEDS": TUNING_SEEDS, "TEST_SEEDS": TEST_SEEDS}
 
 
+def parse_seeds(text: str) -> list[int]:
+    """Seeds from a command line: ``"100-111"``, ``"131"`` or ``"100,104,110-112"``."""
+    out = []
+    for part in text.split(","):
+        a, _, b = part.partition("-")
+        out += list(range(int(a), int(b or a) + 1))
+    return out
+
+
 def check_disjoint() -> None:
     """Raise ``ValueError`` naming the two ranges that share a seed, if any do."""
     names = list(RANGES)
