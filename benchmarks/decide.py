@@ -14,6 +14,7 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
     python benchmarks/decide.py OUT.jsonl --variants kept,settle1 --mode offline
     python benchmarks/decide.py OUT.jsonl --variants sides:arms+legs,sides:arms+legs+torso
     python benchmarks/decide.py OUT.jsonl --part 0 --parts 2 ...  # two processes
+    python benchmarks/decide.py OUT.jsonl --real-seeds 100-123 ...  # other tuning clips
 
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
@@ -29,14 +30,21 @@ import argparse
 import json
 import time
 
-from seeds import TUNING_SEEDS
+from seeds import TUNING_SEEDS, parse_seeds
 from tune import PROCEDURAL, REAL
 
 import posetrack as pt
 
 
-def clips() -> list[tuple[str, int, str, str]]:
-    """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions)."""
+def clips(real_seeds: list[int] | None = None) -> list[tuple[str, int, str, str]]:
+    """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions), or
+    with ``real_seeds`` the wide real motion clips of those tuning seeds (``tune.REAL[seed %
+    8]``, as ``losses.py --kind real``)."""
+    if real_seeds is not None:
+        bad = [s for s in real_seeds if s not in TUNING_SEEDS]
+        if bad:
+            raise SystemExit(f"error: --real-seeds: {bad[:5]} are not tuning seeds")
+        return [("wide real", s, REAL[s % len(REAL)], "wide") for s in real_seeds]
     out = [("wide real", s, REAL[i % len(REAL)], "wide") for i, s in enumerate(range(150, 158))]
     out += [("wide procedural", s, PROCEDURAL[i], "wide") for i, s in enumerate(range(144, 150))]
     out += [("standard", s, PROCEDURAL[i], "standard") for i, s in enumerate(range(136, 142))]
@@ -77,10 +85,14 @@ def main() -> int:
     ap.add_argument("--tracker-seeds", default="0,1")
     ap.add_argument("--part", type=int, default=0)
     ap.add_argument("--parts", type=int, default=1)
+    ap.add_argument(
+        "--real-seeds", help="instead of the 40 clips: wide real motion clips, e.g. 100-123"
+    )
     a = ap.parse_args()
+    chosen = clips(None if a.real_seeds is None else parse_seeds(a.real_seeds))
     variants = {v: settings(v) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
-    todo = [(c, occ, ts) for c in clips() for occ in (0, 2) for ts in seeds][a.part :: a.parts]
+    todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]
     with open(a.out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
             seq = pt.synth.generate(
