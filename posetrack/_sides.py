@@ -31,10 +31,9 @@ side's continuity. Arms truly crossing make no jump: both labellings cost the sa
 Distances are 2D on purpose: the lifted depth at a wrist or an elbow often lands on the
 background behind a thin limb (metre jumps from one frame to the next), and 3D distances
 gave more wrong labels (363 against 306 on wide tuning clips). The face (eyes, ears: a few
-centimetres apart, often missed) and the torso (shoulders, hips) are not relabelled by
-default: on the standard tuning clips relabelling them made more errors than it removed
-(face 17 -> 88 wrong frames, torso 0 -> 10), and a wrongly exchanged torso turns the body
-round.
+centimetres apart, often missed) is not relabelled by default: on the standard tuning clips
+relabelling it made more errors than it removed (17 -> 88 wrong frames); the torso
+(shoulders, hips) is, judged by the depth (below).
 
 The forward pass alone removed most swapped-limb frames where the person is seen whole, but
 under occlusion (one side hidden: its return looks like a jump) it misread often enough to
@@ -85,16 +84,19 @@ whatever the depth says: a detector outlier's jump reads as a one-frame exchange
 wide tuning clips a Delta sum a hair lower kept such readings (with the rule the mean of
 the four wide D's fell by 1.6 mm; benchmarks/README.md).
 
-**Online the torso is relabelled too** (:meth:`SideSettings.for_mode`): a detector that
-reads the person as facing the other way exchanges every pair at once, shoulders and hips
-included (the wide generator's whole-body swaps). Undone limb by limb, the torso stays
-exchanged and turns the model round (on a tuning clip the shoulders 300 mm and the wrists 600
-mm off for 19 frames). With the depth judging each exchange, relabelling the torso online
-brought the mean D of 40 tuning clips from 55.84 to 53.02 mm, no group worse (wide real
-motion clean 49.2 -> 44.5, occluded 85.2 -> 75.8); offline it failed its rule (mean 48.06 ->
-47.66 mm, but wide real occluded 70.6 -> 73.0, all from one clip whose track is lost for a
-while either way; over tracker seeds 0-2 it met the rule, 48.29 -> 47.32 mm, but bought
-nothing on the report seeds), so offline stays arms and legs; the face as well failed both
+**The torso is relabelled too, online and offline** (:meth:`SideSettings.for_mode`): a
+detector that reads the person as facing the other way exchanges every pair at once,
+shoulders and hips included (the wide generator's whole-body swaps). Undone limb by limb,
+the torso stays exchanged and turns the model round (on a tuning clip the shoulders 300 mm
+and the wrists 600 mm off for 19 frames). With the depth judging each exchange, relabelling
+the torso online brought the mean D of 40 tuning clips from 55.84 to 53.02 mm, no group
+worse (wide real motion clean 49.2 -> 44.5, occluded 85.2 -> 75.8). Offline it first failed
+its rule on those clips (mean 48.06 -> 47.66 mm, but wide real occluded 70.6 -> 73.0, one
+clip whose track is lost for a while either way; over tracker seeds 0-2 it met it, 48.29 ->
+47.32), and was held back; on 48 fresh wide real motion tuning runs (seeds 100-123, clean and
+occluded) it met a rule written first, 64.75 -> 61.98 mm (clean 50.6 -> 46.2, occluded 78.9
+-> 77.8, swapped-limb frames 305 -> 252; two clips with a whole-body swap 57 -> 18 and 115
+-> 68 mm), and is the offline default since 2026-11-28. The face failed both modes
 (benchmarks/README.md, "Relabel the torso and the face too"). The torso and the face were
 first left out on label counts alone, before the depth arbitrated (standard tuning clips:
 torso 0 -> 10 wrong frames, face 17 -> 88).
@@ -136,8 +138,8 @@ class SideSettings:
     """
 
     groups: tuple[str, ...] = ("arms", "legs")
-    """Which :data:`SIDE_GROUPS` are relabelled. The online tracker's default adds the torso
-    (:meth:`for_mode`)."""
+    """Which :data:`SIDE_GROUPS` are relabelled. The tracker's default offline and online
+    adds the torso (:meth:`for_mode`)."""
     switch_cost: float = 0.01
     """Cost (m) per frame of the "exchanged" labelling. A swap of n frames is undone while
     n x switch_cost is below the two jumps it saves (sides 0.3 m apart: up to ~60 frames)."""
@@ -192,15 +194,16 @@ class SideSettings:
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> SideSettings:
-        """The :class:`Tracker`'s default for a mode (``sides="auto"``): arms and legs
-        offline and per-frame, arms, legs and torso online (decided on tuning clips; see the
-        module docstring). ``changes`` override fields, e.g. ``arbitrate_margin=0.1``."""
+        """The :class:`Tracker`'s default for a mode (``sides="auto"``): arms, legs and torso
+        offline and online, arms and legs per-frame (where nothing is relabelled; decided on
+        tuning clips, see the module docstring). ``changes`` override fields, e.g.
+        ``arbitrate_margin=0.1``."""
         if mode not in ("offline", "online", "per-frame"):
             raise ValueError(
                 f"SideSettings.for_mode: mode must be 'offline', 'online' or 'per-frame', "
                 f"got {mode!r}"
             )
-        if mode == "online":
+        if mode in ("offline", "online"):
             changes = {"groups": ("arms", "legs", "torso"), **changes}
         return cls(**changes)
 

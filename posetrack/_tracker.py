@@ -495,7 +495,7 @@ class Tracker:
 
     **Left/right swaps of the detector** are undone before each frame is fitted
     (``sides``, :class:`SideSettings`; ``"auto"``, the default: on offline and online, off
-    per-frame): a group of keypoints (arms, legs; online the torso too,
+    per-frame): a group of keypoints (arms, legs, the torso:
     :meth:`SideSettings.for_mode`) whose left and right sides both jump and later jump back
     is read exchanged while that is the continuous reading.
     Offline a pre-pass reads the whole recording forwards and backwards

@@ -213,7 +213,7 @@ def test_summary_and_printout(cli, poses):
     assert "note: keypoints: COCO-18" in cli.stderr
     # Left/right relabelling runs offline by default; the clean clip needs none kept.
     assert summary["inputs"]["fix_sides"] is True and set(summary["sides_exchanged"]) == {
-        "arms", "legs"
+        "arms", "legs", "torso"
     }
     # No track loss on the clean clip: no re-initialisation overrode the detector's labels.
     assert summary["facing_kept_at_reinit"] == [] and "keeping the lost track" not in cli.stdout

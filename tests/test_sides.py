@@ -120,8 +120,13 @@ def test_a_whole_body_swap_is_undone_only_with_the_torso_group():
         np.testing.assert_array_equal(np.flatnonzero(ex[:, g]), sw)
     np.testing.assert_array_equal(out_kp, kp)
     np.testing.assert_array_equal(out_conf, conf)
-    # Arms and legs alone (the offline default): the shoulders and hips stay exchanged.
-    out_kp, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings.for_mode("offline"))
+    # Offline (read from both directions) the default reads all three groups exchanged too.
+    offline = pt.SideSettings.for_mode("offline")
+    ex = pt.two_sided_exchanged(_frames(bad_kp, bad_conf, p3, has), FX, offline)
+    for g in range(3):
+        np.testing.assert_array_equal(np.flatnonzero(ex[:, g]), sw)
+    # Arms and legs alone: the shoulders and hips stay exchanged.
+    out_kp, _, ex = _run(bad_kp, bad_conf, p3, has, pt.SideSettings(groups=("arms", "legs")))
     limbs = [k for pair in ARMS + LEGS for k in pair]
     np.testing.assert_array_equal(out_kp[:, limbs], kp[:, limbs])
     right, left = [r for r, _ in TORSO], [lt for _, lt in TORSO]
@@ -129,7 +134,8 @@ def test_a_whole_body_swap_is_undone_only_with_the_torso_group():
 
 
 def test_for_mode_gives_the_trackers_defaults():
-    assert pt.SideSettings.for_mode("offline") == pt.SideSettings()
+    assert pt.SideSettings.for_mode("offline").groups == ("arms", "legs", "torso")
+    assert pt.SideSettings.for_mode("offline") == pt.SideSettings.for_mode("online")
     assert pt.SideSettings.for_mode("per-frame") == pt.SideSettings()
     tuned = pt.SideSettings.for_mode("online", switch_cost=0.02)
     assert tuned.groups == ("arms", "legs", "torso") and tuned.switch_cost == 0.02
@@ -138,7 +144,7 @@ def test_for_mode_gives_the_trackers_defaults():
         pt.SideSettings.for_mode("live")
     intr = pt.Intrinsics.create(fx=262.5, fy=262.5, cx=159.5, cy=119.5, width=320, height=240)
     assert pt.Tracker(intr, mode="online").sides == pt.SideSettings.for_mode("online")
-    assert pt.Tracker(intr, mode="offline").sides == pt.SideSettings()
+    assert pt.Tracker(intr, mode="offline").sides == pt.SideSettings.for_mode("offline")
     assert pt.Tracker(intr, mode="per-frame").sides is None
 
 

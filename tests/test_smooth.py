@@ -526,10 +526,10 @@ def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, mon
     (what 2D continuity does on occluded side views): arbitrated, the depth refuses it and
     the track is the one without relabelling, bit for bit; taken as read, it costs accuracy."""
     T = len(clip.depth)
-    wrong = np.zeros((T, 2), bool)
-    wrong[10:20, 0] = True
 
     def misread(self, depths, keypoints2d, confidence):
+        wrong = np.zeros((T, len(self.sides.groups)), bool)  # one column per group
+        wrong[10:20, 0] = True
         return np.zeros(T, np.int64), wrong
 
     monkeypatch.setattr(pt.Tracker, "_two_sided_labels", misread)

@@ -672,8 +672,8 @@ def build_parser() -> argparse.ArgumentParser:
     sides = t.add_mutually_exclusive_group()
     sides.add_argument(
         "--fix-sides", dest="fix_sides", action="store_const", const=True, default=None,
-        help="undo the detector's left/right swaps of the arms and legs (with --online the "
-        "torso's too) before fitting. "
+        help="undo the detector's left/right swaps of the arms, legs and torso before "
+        "fitting. "
         "Default: on offline (read from both directions, each exchange kept only where the "
         "depth agrees) and with --online (read forwards; the depth judges each exchange "
         "before its poses are published), off with --per-frame",
