@@ -90,6 +90,12 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     for bad in ("settle", "sides:arms+elbows"):
         with pytest.raises(SystemExit, match="settleN|groups"):
             decide.settings(bad)
+    # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
+    real = decide.clips([100, 107])
+    assert [c[1] for c in real] == [100, 107] and {c[3] for c in real} == {"wide"}
+    assert [c[2] for c in real] == [decide.REAL[100 % len(decide.REAL)], decide.REAL[107 % len(decide.REAL)]]
+    with pytest.raises(SystemExit, match="not tuning seeds"):
+        decide.clips([0, 100])
 
 
 def test_the_wide_factor_runs_put_back_one_factor_each(seeds):
