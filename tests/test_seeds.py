@@ -93,7 +93,8 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
     real = decide.clips([100, 107])
     assert [c[1] for c in real] == [100, 107] and {c[3] for c in real} == {"wide"}
-    assert [c[2] for c in real] == [decide.REAL[100 % len(decide.REAL)], decide.REAL[107 % len(decide.REAL)]]
+    n = len(decide.REAL)
+    assert [c[2] for c in real] == [decide.REAL[100 % n], decide.REAL[107 % n]]
     with pytest.raises(SystemExit, match="not tuning seeds"):
         decide.clips([0, 100])
 
