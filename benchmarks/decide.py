@@ -31,20 +31,21 @@ import json
 import time
 
 from seeds import TUNING_SEEDS, parse_seeds
-from tune import PROCEDURAL, REAL
+from tune import PROCEDURAL, REAL, check_seeds, real_motion
 
 import posetrack as pt
 
 
 def clips(real_seeds: list[int] | None = None) -> list[tuple[str, int, str, str]]:
     """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions), or
-    with ``real_seeds`` the wide real motion clips of those tuning seeds (``tune.REAL[seed %
-    8]``, as ``losses.py --kind real``)."""
+    with ``real_seeds`` the wide real motion clips of those tuning seeds
+    (:func:`tune.real_motion`, as ``losses.py --kind real``)."""
     if real_seeds is not None:
-        bad = [s for s in real_seeds if s not in TUNING_SEEDS]
-        if bad:
-            raise SystemExit(f"error: --real-seeds: {bad[:5]} are not tuning seeds")
-        return [("wide real", s, REAL[s % len(REAL)], "wide") for s in real_seeds]
+        try:
+            check_seeds(real_seeds)
+        except ValueError as e:
+            raise SystemExit(f"error: --real-seeds: {e}") from None
+        return [("wide real", s, real_motion(s), "wide") for s in real_seeds]
     out = [("wide real", s, REAL[i % len(REAL)], "wide") for i, s in enumerate(range(150, 158))]
     out += [("wide procedural", s, PROCEDURAL[i], "wide") for i, s in enumerate(range(144, 150))]
     out += [("standard", s, PROCEDURAL[i], "standard") for i, s in enumerate(range(136, 142))]

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 from seeds import TUNING_SEEDS, parse_seeds
-from tune import REAL
+from tune import real_motion
 
 import posetrack as pt
 from posetrack.app import machine_info
@@ -76,7 +76,7 @@ def facing_error_deg(keypoints3d: np.ndarray, truth: np.ndarray) -> np.ndarray:
 
 def track_clip(seed: int, occlusion: int, keep: int = 15, neck: float = 0.0) -> list[dict]:
     """One clip tracked in each mode with each configuration."""
-    motion = REAL[seed % len(REAL)]
+    motion = real_motion(seed)
     seq = pt.synth.generate(
         seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occlusion, width=320,
         height=240, with_rgb=False, variety="wide",

@@ -272,7 +272,7 @@ def _offline_default(seq, args, out: dict, full: bool = True) -> dict:
     # The torso's left/right labels as detected (the offline default before 2026-11-28
     # evening; the default now relabels the torso too, as online).
     out["MHT_h offline, torso as detected"] = pt.track(
-        *args, seq.intrinsics, sides=pt.SideSettings()
+        *args, seq.intrinsics, sides=pt.SideSettings(groups=("arms", "legs"))
     ).keypoints3d
     lr_tr = pt.Tracker(seq.intrinsics, mode="offline")  # the default
     res = lr_tr.run(*args)

@@ -70,6 +70,12 @@ GRID = {
 }
 
 
+def real_motion(seed: int) -> str:
+    """The real clip a tuning seed's wide real-motion run tracks (``REAL[seed % len(REAL)]``;
+    decide.py --real-seeds, facing.py, losses.py --kind real)."""
+    return REAL[seed % len(REAL)]
+
+
 def check_seeds(seeds) -> None:
     """Refuse any seed outside ``TUNING_SEEDS`` (reported and test seeds are never tuned on)."""
     bad = [s for s in seeds if s not in TUNING_SEEDS]
