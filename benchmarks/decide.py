@@ -1,8 +1,8 @@
 """Tuning-seed decision runs (issue 12): D of tracker variants per clip and tracker seed.
 
 Variants differ in one setting: the filter of detections that jumped onto another keypoint
-(``DuplicateSettings``), the left/right groups relabelled (``SideSettings.groups``) or the
-consensus refit (``TrackerConfig``).
+(``DuplicateSettings``), the left/right groups relabelled (``SideSettings.groups``), the
+consensus refit or the lifting's depth band (``TrackerConfig``).
 
 Runs the 40 tuning clips of the decisions recorded in benchmarks/README.md (wide real motion
 seeds 150-157 with ``tune.REAL``, wide procedural 144-149 and standard 136-141 with
@@ -19,7 +19,8 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
-``settle1`` is the default filter), ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
+``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
+``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
 names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
@@ -65,6 +66,11 @@ def settings(variant: str) -> dict:
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
+    if variant.startswith("band"):
+        try:
+            return {"config": pt.TrackerConfig(lift_band=float(variant[4:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("sides:"):
         names, with_limbs = variant[6:].removesuffix("/with-limbs"), variant.endswith("/with-limbs")
         groups = tuple(names.split("+"))
@@ -74,7 +80,7 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'kept', "
-        "'settleN', 'sides:G+G...'"
+        "'settleN', 'bandM', 'sides:G+G...'"
     )
 
 

@@ -50,6 +50,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "occlusion_gate": False,
     "depth_confidence": 0.0,
     "reinit_keep_facing": 0,
+    "lift_band": 0.0,
 }
 
 _POSITIVE = (
@@ -109,6 +110,12 @@ class TrackerConfig(eqx.Module):
     "median" (default) or "nearest" (the median of the nearest cluster of depths: a thin
     limb's own depth rather than the background around it; opt-in, see benchmarks/README.md).
     Every lifting of the tracker uses it (step, initialisation, body-shape estimates)."""
+    lift_band: float = 0.0
+    """Metres: the lifting ignores window depths more than this behind the median lifted depth
+    of the frame's torso keypoints (:func:`~posetrack._observe.body_depth_limit`): a thin
+    limb's keypoint a pixel off the limb then reads the limb pixels its window holds, or no
+    depth (2D only), instead of the background 1-2 m behind. 0 = off (the paper's lifting).
+    Every lifting of the tracker uses it. Traced."""
     confidence_threshold: float = 0.4
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
     depth_confidence: float = 0.0
@@ -267,6 +274,9 @@ class TrackerConfig(eqx.Module):
             v = getattr(self, name)
             if isinstance(v, float) and not 0.0 <= v < 1.0:
                 raise ValueError(f"TrackerConfig.{name} must be in [0, 1), got {v}")
+        v = self.lift_band
+        if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"TrackerConfig.lift_band must be >= 0 metres, got {v!r}")
         v = self.depth_confidence
         if isinstance(v, float) and not 0.0 <= v <= 1.0:
             raise ValueError(f"TrackerConfig.depth_confidence must be in [0, 1], got {v}")

@@ -33,7 +33,7 @@ from ._body import BodyShape
 from ._camera import Intrinsics, pixel_rays_np
 from ._config import TrackerConfig
 from ._geometry import surface_offsets
-from ._observe import Landmarks, lift_keypoints
+from ._observe import Landmarks, body_depth_limit, lift_keypoints
 
 DEFAULT_RADIUS = 1.1
 """Metres: horizontal distance from the vertical axis through the root that can hold body:
@@ -446,9 +446,18 @@ def tracker_landmarks(
 ) -> Landmarks:
     """:func:`~posetrack.lift_keypoints` with the tracker's settings: its lifting window and
     confidence threshold, and with ``config.surface_offset`` each landmark pushed back by
-    :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre)."""
-    return lift_keypoints(
-        depth, keypoints2d, confidence, intrinsics,
-        window=config.lift_window, confidence_threshold=config.confidence_threshold,
-        depth_offset=landmark_offsets(config, shape), rule=config.lift_rule,
-    )  # fmt: skip
+    :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre), each window
+    reading only depths within ``config.lift_band`` behind the torso
+    (:func:`~posetrack._observe.body_depth_limit`)."""
+
+    def lift(max_depth):
+        return lift_keypoints(
+            depth, keypoints2d, confidence, intrinsics,
+            window=config.lift_window, confidence_threshold=config.confidence_threshold,
+            depth_offset=landmark_offsets(config, shape), rule=config.lift_rule,
+            max_depth=max_depth,
+        )  # fmt: skip
+
+    # Lifted twice: the torso's landmarks place the body, and windows then ignore the depths
+    # more than ``config.lift_band`` behind it (the background; off at 0: the same landmarks).
+    return lift(body_depth_limit(lift(10.0), config.lift_band))

@@ -57,7 +57,7 @@ def lift_keypoints(
     window: int = 5,
     confidence_threshold: float = 0.1,
     min_depth: float = 0.2,
-    max_depth: float = 10.0,
+    max_depth: Float[Array, ""] | float = 10.0,
     min_valid: int = 3,
     depth_offset: Float[Array, " kpt"] | float = 0.0,
     rule: str = "median",
@@ -72,7 +72,8 @@ def lift_keypoints(
         intrinsics: the depth camera (depth registered to the keypoints' image).
         window: odd side length of the square window the depth median is taken over, pixels.
         confidence_threshold: f_i requires a confidence above this.
-        min_depth, max_depth: valid depth range, metres.
+        min_depth, max_depth: valid depth range, metres (``max_depth`` may be traced: see
+            :func:`body_depth_limit`).
         min_valid: F_i requires at least this many valid depths in the window.
         depth_offset: metres added along each keypoint's viewing ray after lifting. The depth
             sensor sees the body's surface, the model's keypoints are joint centres; pushing the
@@ -171,3 +172,30 @@ def confident_depth(landmarks: Landmarks, ratio: Float[Array, ""] | float) -> La
         detected=landmarks.detected,
         has_depth=has_depth,
     )
+
+
+#: Torso keypoints (neck, shoulders, hips) whose lifted depths place the body for
+#: :func:`body_depth_limit`.
+TORSO_KEYPOINTS = (1, 2, 5, 8, 11)
+
+
+def body_depth_limit(
+    landmarks: Landmarks, band: Float[Array, ""] | float, max_depth: float = 10.0
+) -> Float[Array, ""]:
+    """The farthest depth a keypoint's window may read as body: the median lifted depth of
+    the frame's torso landmarks (neck, shoulders, hips) plus ``band`` metres; ``max_depth``
+    where ``band <= 0`` or no torso landmark has depth. Jittable; ``band`` may be traced.
+
+    A keypoint on a thin limb (a wrist or elbow a few pixels wide at 320x240 and 3 m) whose
+    detection lies a pixel or more off the limb reads the background behind the person in
+    its window, typically 1-2 m behind the joint. Lifting a second time with this limit as
+    ``max_depth`` leaves such a keypoint without depth (fitted in 2D) or with the limb pixels
+    its window does hold, instead of a landmark metres behind the body. A hand held behind
+    the back lies well within half a metre of the torso's depth.
+    """
+    z = landmarks.points3d[np.asarray(TORSO_KEYPOINTS), 2]
+    ok = landmarks.has_depth[np.asarray(TORSO_KEYPOINTS)]
+    median = jnp.nanmedian(jnp.where(ok, z, jnp.nan))
+    use = (jnp.asarray(band) > 0) & jnp.any(ok)
+    return jnp.where(use, jnp.minimum(jnp.where(use, median, 0.0) + band, max_depth), max_depth)
+
