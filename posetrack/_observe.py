@@ -198,4 +198,3 @@ def body_depth_limit(
     median = jnp.nanmedian(jnp.where(ok, z, jnp.nan))
     use = (jnp.asarray(band) > 0) & jnp.any(ok)
     return jnp.where(use, jnp.minimum(jnp.where(use, median, 0.0) + band, max_depth), max_depth)
-

@@ -139,6 +139,62 @@ def test_lift_rule_is_validated_and_reaches_the_tracker_lifting():
     assert z == {"median": pytest.approx(4.0), "nearest": pytest.approx(2.0)}
 
 
+def _torso_scene():
+    """A torso (a block at 3 m, rows 10..49, columns 20..39), an arm 2 px wide at 3.3 m
+    (columns 50..51) and the wall at 4.6 m: 10 of a 5x5 window on the arm are arm."""
+    d = np.full((60, 80), 4.6, np.float32)
+    d[10:50, 20:40] = 3.0
+    d[:, 50:52] = 3.3
+    torso = [(25.0, 15.0), (35.0, 15.0), (25.0, 45.0), (35.0, 45.0), (30.0, 12.0)]
+    kp, conf = np.zeros((18, 2), np.float32), np.zeros(18, np.float32)
+    for j, uv in zip((2, 5, 8, 11, 1), torso):
+        kp[j], conf[j] = uv, 1.0
+    kp[4], conf[4] = (51.0, 30.0), 1.0  # the wrist on the arm's edge
+    kp[7], conf[7] = (60.0, 30.0), 1.0  # a wrist over the wall only
+    return d, kp, conf
+
+
+def test_body_depth_limit_is_the_torso_median_plus_the_band():
+    from posetrack._observe import body_depth_limit
+
+    d, kp, conf = _torso_scene()
+    lm = lift_keypoints(jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR)
+    assert float(body_depth_limit(lm, 0.7)) == pytest.approx(3.7)
+    assert float(body_depth_limit(lm, 0.0)) == 10.0  # off
+    assert float(body_depth_limit(lm, 9.0)) == 10.0  # never beyond max_depth
+    no_torso = Landmarks(lm.keypoints2d, lm.confidence, lm.points3d, lm.detected,
+                         lm.has_depth.at[jnp.array([1, 2, 5, 8, 11])].set(False))  # fmt: skip
+    assert float(body_depth_limit(no_torso, 0.7)) == 10.0
+    # The torso's median, not its mean: one torso keypoint on the wall does not move it.
+    lm2 = lift_keypoints(jnp.asarray(d), jnp.asarray(kp).at[1].set((60.0, 12.0)),
+                         jnp.asarray(conf), INTR)  # fmt: skip
+    assert float(body_depth_limit(lm2, 0.7)) == pytest.approx(3.7)
+
+
+def test_lift_band_reads_the_limb_or_nothing_instead_of_the_wall():
+    """The tracker's lifting with ``lift_band``: the wrist on the arm's edge reads the arm
+    (the wall, 15 of its 25 pixels, is beyond the band), the wrist over the wall alone keeps
+    its 2D detection but no depth; the torso is unchanged; 0 is the plain lifting."""
+    from posetrack._body import BodyShape
+    from posetrack._depthobs import tracker_landmarks
+
+    d, kp, conf = _torso_scene()
+
+    def lifted(band):
+        cfg = pt.TrackerConfig(lift_band=band, surface_offset=False)
+        return tracker_landmarks(cfg, BodyShape.default(), INTR, jnp.asarray(d), kp, conf)
+
+    plain, banded = lifted(0.0), lifted(0.7)
+    assert float(plain.points3d[4, 2]) == pytest.approx(4.6)
+    assert float(banded.points3d[4, 2]) == pytest.approx(3.3)
+    assert bool(plain.has_depth[7]) and not bool(banded.has_depth[7])
+    assert bool(banded.detected[7])
+    torso = np.array([1, 2, 5, 8, 11])
+    np.testing.assert_array_equal(plain.points3d[torso], banded.points3d[torso])
+    with pytest.raises(ValueError, match="lift_band"):
+        pt.TrackerConfig(lift_band=-0.1)
+
+
 def test_even_count_median_and_min_valid(lift):
     d = np.zeros((60, 80), np.float32)
     d[30, 40], d[30, 41] = 2.0, 2.2  # only two valid pixels in the window
