@@ -48,6 +48,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --refit-only --online-only ...  # the online pair only
     python benchmarks/motion.py --facing-only ...   # both defaults, re-init keeping facing too
     python benchmarks/motion.py --neck-only 1 ...   # both defaults, head's turn limited too
+    python benchmarks/motion.py --band-only 0.7 ... # both defaults, lifting's depth band too
     python benchmarks/motion.py --defaults-only ... # LVM and both defaults only
 
 Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
@@ -126,6 +127,12 @@ NECK_ROWS = (
     "LVM", "MHT_h offline", "MHT_h offline, neck limited", f"MHT_h online L={LAG}",
     f"MHT_h online L={LAG}, neck limited",
 )  # fmt: skip
+#: ``--band-only M``: LVM and both defaults, each also with the lifting's depth band
+#: (``TrackerConfig(lift_band=M)``; a candidate default, 2026-11-28 night).
+BAND_ROWS = (
+    "LVM", "MHT_h offline", "MHT_h offline, lift band", f"MHT_h online L={LAG}",
+    f"MHT_h online L={LAG}, lift band",
+)  # fmt: skip
 #: ``--defaults-only``: LVM and both defaults (offline, online at lag 3), nothing else: the
 #: before/after of a change to the defaults themselves, read beside an earlier run's rows
 #: (2026-11-28, the loss tests for a far, jittery person).
@@ -147,6 +154,7 @@ def run_clip(
     keep: int = 5,
     neck: float = 0.0,
     defaults_only: bool = False,
+    band: float = 0.0,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -163,9 +171,11 @@ def run_clip(
         out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
         return {"truth": seq.joints3d, "est": out, "cost": cost}
-    # One candidate beside both defaults: the fit's neck limit, or the facing guard's window.
+    # One candidate beside both defaults: the fit's neck limit, the lifting's depth band, or
+    # the facing guard's window.
     candidate = (
         (", neck limited", neck_config(neck)) if neck > 0
+        else (", lift band", pt.TrackerConfig(lift_band=band)) if band > 0
         else (", facing kept", pt.TrackerConfig(reinit_keep_facing=keep)) if facing_only
         else None
     )  # fmt: skip
@@ -336,6 +346,11 @@ def main() -> int:
         "weight W (ResidualSettings(neck_limit=W))",
     )  # fmt: skip
     ap.add_argument(
+        "--band-only", type=float, default=0.0, metavar="M",
+        help="LVM and the offline and online defaults, each also with the lifting's depth band "
+        "at M metres (TrackerConfig(lift_band=M))",
+    )  # fmt: skip
+    ap.add_argument(
         "--defaults-only", action="store_true",
         help="LVM and the offline and online defaults only (a change to the defaults, read "
         "beside an earlier run)",
@@ -352,9 +367,15 @@ def main() -> int:
         ap.error("--facing-only excludes --online-only, --offline-only and --refit-only")
     if a.neck_only and (a.online_only or a.offline_only or a.refit_only or a.facing_only):
         ap.error("--neck-only excludes the other --*-only options")
+    if a.band_only and (
+        a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
+        or a.defaults_only
+    ):  # fmt: skip
+        ap.error("--band-only excludes the other --*-only options")
     names = (
         DEFAULT_ROWS if a.defaults_only
-        else NECK_ROWS if a.neck_only else FACING_ROWS if a.facing_only
+        else NECK_ROWS if a.neck_only else BAND_ROWS if a.band_only
+        else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
         else OFFLINE_ROWS if a.offline_only else REFIT_ROWS if a.refit_only else ROWS
     )  # fmt: skip
@@ -378,7 +399,7 @@ def main() -> int:
         for occ in (0, 2):
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
-                a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only,
+                a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only, a.band_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -439,7 +460,9 @@ def main() -> int:
             if pair and all(x is not None for x in pair):
                 summary[cond][name]["D_pair_mm"] = float(np.mean(pair))
     costs = [c["cost"] for c in per_clip]
-    few_costs = a.refit_only or a.facing_only or a.neck_only or a.defaults_only  # step only
+    few_costs = (
+        a.refit_only or a.facing_only or a.neck_only or a.defaults_only or a.band_only
+    )  # step only
     cost = {} if a.offline_only or few_costs else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
         "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
@@ -531,6 +554,7 @@ def main() -> int:
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
+        "band_only": a.band_only,
         "defaults_only": a.defaults_only,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
