@@ -110,12 +110,14 @@ class TrackerConfig(eqx.Module):
     "median" (default) or "nearest" (the median of the nearest cluster of depths: a thin
     limb's own depth rather than the background around it; opt-in, see benchmarks/README.md).
     Every lifting of the tracker uses it (step, initialisation, body-shape estimates)."""
-    lift_band: float = 0.0
+    lift_band: float = 0.7
     """Metres: the lifting ignores window depths more than this behind the median lifted depth
     of the frame's torso keypoints (:func:`~posetrack._observe.body_depth_limit`): a thin
     limb's keypoint a pixel off the limb then reads the limb pixels its window holds, or no
     depth (2D only), instead of the background 1-2 m behind. 0 = off (the paper's lifting).
-    Every lifting of the tracker uses it. Traced."""
+    0.7, the observation's own bound behind the root, since 2026-11-28 (wide real motion
+    tuning clips, 48 runs a mode: offline D 65.4 -> 60.9 mm, online 80.8 -> 76.9;
+    benchmarks/README.md). Every lifting of the tracker uses it. Traced."""
     confidence_threshold: float = 0.4
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
     depth_confidence: float = 0.0
