@@ -64,6 +64,7 @@ from ._metrics import swapped_limb_frames as swapped_limb_frames
 from ._metrics import swapped_limbs as swapped_limbs
 from ._many import track_many as track_many
 from ._observe import Landmarks as Landmarks
+from ._observe import body_depth_limit as body_depth_limit
 from ._observe import confident_depth as confident_depth
 from ._observe import lift_keypoints as lift_keypoints
 from ._programs import enable_cache as enable_cache
@@ -121,8 +122,8 @@ __all__ = [
     "BODY_JOINTS", "KEYPOINT_NAMES", "NUM_PARAMS", "BodyShape", "Intrinsics", "backproject",
     "capsules", "facing_camera_params", "keypoints", "make_params", "project",
     # observations
-    "Landmarks", "confident_depth", "downsample_depth", "fit_floor_plane", "lift_keypoints",
-    "observation_maps",
+    "Landmarks", "body_depth_limit", "confident_depth", "downsample_depth", "fit_floor_plane",
+    "lift_keypoints", "observation_maps",
     # fitting (Eq. (1))
     "FitResult", "FitSettings", "ResidualSettings", "estimate_shape", "fit_hypotheses",
     "fit_pose", "initial_pose", "refine_pose",

@@ -112,7 +112,7 @@ class TrackerConfig(eqx.Module):
     Every lifting of the tracker uses it (step, initialisation, body-shape estimates)."""
     lift_band: float = 0.7
     """Metres: the lifting ignores window depths more than this behind the median lifted depth
-    of the frame's torso keypoints (:func:`~posetrack._observe.body_depth_limit`): a thin
+    of the frame's torso keypoints (:func:`~posetrack.body_depth_limit`): a thin
     limb's keypoint a pixel off the limb then reads the limb pixels its window holds, or no
     depth (2D only), instead of the background 1-2 m behind. 0 = off (the paper's lifting).
     0.7, the observation's own bound behind the root, since 2026-11-28 (wide real motion

@@ -448,7 +448,7 @@ def tracker_landmarks(
     confidence threshold, and with ``config.surface_offset`` each landmark pushed back by
     :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre), each window
     reading only depths within ``config.lift_band`` behind the torso
-    (:func:`~posetrack._observe.body_depth_limit`)."""
+    (:func:`~posetrack.body_depth_limit`)."""
 
     def lift(max_depth):
         return lift_keypoints(

@@ -155,7 +155,7 @@ def _torso_scene():
 
 
 def test_body_depth_limit_is_the_torso_median_plus_the_band():
-    from posetrack._observe import body_depth_limit
+    body_depth_limit = pt.body_depth_limit
 
     d, kp, conf = _torso_scene()
     lm = lift_keypoints(jnp.asarray(d), jnp.asarray(kp), jnp.asarray(conf), INTR)
