@@ -10,7 +10,15 @@ selection, weighting or scoring fails it.
 Clips: ``pt.synth.generate`` with the procedural motions (no data set needed), 320x240, 40
 frames, occlusion levels 2 and 3, seeds 500-507 (``TEST_SEEDS`` of ``benchmarks/seeds.py``:
 neither reported by the accuracy benchmark nor tuned on). LVM is
-``TrackerConfig.recommended("lvm")``; MHT_h is the shipped ``TrackerConfig()``.
+``TrackerConfig.recommended("lvm")``; MHT_h is the shipped ``TrackerConfig()``; all three
+with the paper's lifting (``lift_band=0``). Since 2026-11-28 the shipped lifting ignores
+window depths more than 0.7 m behind the torso (``lift_band``), which removes most of the
+background liftings that the weighted subsets used to leave out, for LVM too: with it (CI
+on a clean clone, 2-core Intel Xeon) LVM's mean D here was 98.4 mm and MHT_h's 79.2 (D ratio
+0.805, lower on 6 of 8 clips), and W^h off still failed the D margin, so that margin no
+longer separated a healthy tracker from sabotage (a). The test keeps the lifting the
+margins were measured on; what the band does to MHT_h's gain is in the README (Beyond the
+paper).
 
 Asserted:
 
@@ -102,10 +110,12 @@ MIN_CLIPS_BETTER = 7
 DRAW_MARGIN = 0.6
 BAD_LANDMARK_M = 0.15
 
+#: The paper's lifting (``lift_band=0``) for all three: the margins were set on it (below).
+PAPER_LIFTING = {"lift_band": 0.0}
 CONFIGS = {
-    "LVM": pt.TrackerConfig.recommended("lvm"),
-    "MHT_h": pt.TrackerConfig(),
-    "MHT_h without W^h": pt.TrackerConfig(sigma_h=1e6),
+    "LVM": pt.TrackerConfig.recommended("lvm", **PAPER_LIFTING),
+    "MHT_h": pt.TrackerConfig(**PAPER_LIFTING),
+    "MHT_h without W^h": pt.TrackerConfig(sigma_h=1e6, **PAPER_LIFTING),
 }
 
 
