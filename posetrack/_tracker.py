@@ -1934,6 +1934,8 @@ def lift_sequence(
     depth_scale: float = 1000.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Plain lifting of every frame (no model, no surface offset): the naive baseline's input.
+    With ``config``'s lifting otherwise, the depth band (``lift_band``, default 0.7 m since
+    2026-11-28) included; pass ``TrackerConfig(lift_band=0)`` for the paper's lifting.
 
     Returns:
         (points3d (T, 18, 3) metres, has_depth (T, 18)); pass them to ``naive_lifting``.
