@@ -450,14 +450,13 @@ def tracker_landmarks(
     reading only depths within ``config.lift_band`` behind the torso
     (:func:`~posetrack.body_depth_limit`)."""
 
-    def lift(max_depth):
+    def lift(**max_depth):  # lift_keypoints' own max_depth unless given
         return lift_keypoints(
             depth, keypoints2d, confidence, intrinsics,
             window=config.lift_window, confidence_threshold=config.confidence_threshold,
-            depth_offset=landmark_offsets(config, shape), rule=config.lift_rule,
-            max_depth=max_depth,
+            depth_offset=landmark_offsets(config, shape), rule=config.lift_rule, **max_depth,
         )  # fmt: skip
 
     # Lifted twice: the torso's landmarks place the body, and windows then ignore the depths
     # more than ``config.lift_band`` behind it (the background; off at 0: the same landmarks).
-    return lift(body_depth_limit(lift(10.0), config.lift_band))
+    return lift(max_depth=body_depth_limit(lift(), config.lift_band))
