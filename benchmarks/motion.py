@@ -50,6 +50,7 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --neck-only 1 ...   # both defaults, head's turn limited too
     python benchmarks/motion.py --band-only 0.7 ... # both defaults, lifting's depth band too
     python benchmarks/motion.py --defaults-only ... # LVM and both defaults only
+    python benchmarks/motion.py --targets ...       # issue 12's target rows, all as shipped
 
 Rows that pair with an in-batch row also get ``D_pair_mm``: D over the joints and frames both
 rows estimate (the in-batch refit gives up on more frames of some wide clips).
@@ -137,6 +138,13 @@ BAND_ROWS = (
 #: before/after of a change to the defaults themselves, read beside an earlier run's rows
 #: (2026-11-28, the loss tests for a far, jittery person).
 DEFAULT_ROWS = ("LVM", "MHT_h offline", f"MHT_h online L={LAG}")
+#: ``--targets``: the rows issue 12's targets are read from, all as shipped now: naive
+#: lifting, LVM, the per-frame MHT_h (no left/right relabelling: the paper's tracker) and its
+#: Gaussian filter (the post-hoc floor), and both defaults (2026-11-29).
+TARGET_ROWS = (
+    "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
+    f"MHT_h online L={LAG}",
+)  # fmt: skip
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
 
@@ -155,6 +163,7 @@ def run_clip(
     neck: float = 0.0,
     defaults_only: bool = False,
     band: float = 0.0,
+    targets: bool = False,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -167,6 +176,16 @@ def run_clip(
     lvm = pt.track(*args, seq.intrinsics, pt.TrackerConfig.recommended("lvm"), mode="per-frame")
     out["LVM"] = lvm.keypoints3d
     if defaults_only:
+        res = pt.track(*args, seq.intrinsics)
+        out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
+        out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
+    if targets:
+        pts, flags = pt.lift_sequence(*args, seq.intrinsics)
+        out["naive lifting"] = pt.naive_lifting(pts, flags)
+        per_frame = pt.Tracker(seq.intrinsics, mode="offline", sides=None).run(*args)
+        out["MHT_h per-frame"] = per_frame.per_frame_keypoints3d
+        out["MHT_h + Gaussian"] = pt.gaussian_smoothed(per_frame.per_frame_keypoints3d, 2.0)
         res = pt.track(*args, seq.intrinsics)
         out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
@@ -355,8 +374,18 @@ def main() -> int:
         help="LVM and the offline and online defaults only (a change to the defaults, read "
         "beside an earlier run)",
     )  # fmt: skip
+    ap.add_argument(
+        "--targets", action="store_true",
+        help="the rows issue 12's targets are read from, as shipped: naive lifting, LVM, "
+        "MHT_h per-frame and its Gaussian filter, the offline and online defaults",
+    )  # fmt: skip
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "motion.json"))
     a = ap.parse_args()
+    if a.targets and (
+        a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
+        or a.band_only or a.defaults_only
+    ):  # fmt: skip
+        ap.error("--targets excludes the --*-only options")
     if a.defaults_only and (
         a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
     ):
@@ -373,7 +402,7 @@ def main() -> int:
     ):  # fmt: skip
         ap.error("--band-only excludes the other --*-only options")
     names = (
-        DEFAULT_ROWS if a.defaults_only
+        TARGET_ROWS if a.targets else DEFAULT_ROWS if a.defaults_only
         else NECK_ROWS if a.neck_only else BAND_ROWS if a.band_only
         else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
@@ -400,6 +429,7 @@ def main() -> int:
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
                 a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only, a.band_only,
+                a.targets,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -461,7 +491,7 @@ def main() -> int:
                 summary[cond][name]["D_pair_mm"] = float(np.mean(pair))
     costs = [c["cost"] for c in per_clip]
     few_costs = (
-        a.refit_only or a.facing_only or a.neck_only or a.defaults_only or a.band_only
+        a.refit_only or a.facing_only or a.neck_only or a.defaults_only or a.band_only or a.targets
     )  # step only
     cost = {} if a.offline_only or few_costs else {
         "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
@@ -555,7 +585,7 @@ def main() -> int:
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
         "band_only": a.band_only,
-        "defaults_only": a.defaults_only,
+        "defaults_only": a.defaults_only, "targets": a.targets,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
