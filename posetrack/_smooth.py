@@ -84,9 +84,11 @@ class SmoothSettings:
     through)."""
     landmark_weight: float = 1.0
     """Weight of the landmarks (Eq. (1)) in each frame's data term."""
-    pose_weight: float = 1.0
+    pose_weight: float = 0.5
     """Weight of the tracker's own keypoints in each frame's data term (they carry what the
-    depth rendering and the hypotheses' vote found, which the landmarks alone do not)."""
+    depth rendering and the hypotheses' vote found, which the landmarks alone do not). 0.5
+    since 2026-11-29 (1.0 before): on fresh wide real tuning clips 61.59 -> 60.87 mm, none
+    worse by more than 1 mm (benchmarks/README.md, "The smoother's consensus distance")."""
     online_window: int = 12
     """Frames the online mode smooths over at every frame (static): the newest frame and the
     ones before it."""
