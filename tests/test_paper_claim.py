@@ -16,9 +16,13 @@ window depths more than 0.7 m behind the torso (``lift_band``), which removes mo
 background liftings that the weighted subsets used to leave out, for LVM too: with it (CI
 on a clean clone, 2-core Intel Xeon) LVM's mean D here was 98.4 mm and MHT_h's 79.2 (D ratio
 0.805, lower on 6 of 8 clips), and W^h off still failed the D margin, so that margin no
-longer separated a healthy tracker from sabotage (a). The test keeps the lifting the
-margins were measured on; what the band does to MHT_h's gain is in the README (Beyond the
-paper).
+longer separated a healthy tracker from sabotage (a). Re-measured with the band
+(2026-11-29, tracker seeds +0 / +1000 / +2000, Intel Xeon): healthy D ratio .805 .767 .794
+(6-7 of 8 clips), draw ratio .477 .488 .489; (a) D ratio .866 .870 .844 (6-8 of 8), draw
+ratio .946 .947 .955. The draw ratio still separates them widely; the D ratio leaves 0.04
+between the healthy worst and the sabotage's best, and the clip count not at all. The test
+keeps the lifting the margins were measured on; what the band does to MHT_h's gain is in
+the README (Beyond the paper).
 
 Asserted:
 
