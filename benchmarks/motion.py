@@ -181,11 +181,7 @@ def run_clip(
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
         return {"truth": seq.joints3d, "est": out, "cost": cost}
     if targets:
-        pts, flags = pt.lift_sequence(*args, seq.intrinsics)
-        out["naive lifting"] = pt.naive_lifting(pts, flags)
-        per_frame = pt.Tracker(seq.intrinsics, mode="offline", sides=None).run(*args)
-        out["MHT_h per-frame"] = per_frame.per_frame_keypoints3d
-        out["MHT_h + Gaussian"] = pt.gaussian_smoothed(per_frame.per_frame_keypoints3d, 2.0)
+        _baseline_rows(seq, args, out)
         res = pt.track(*args, seq.intrinsics)
         out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
@@ -269,20 +265,26 @@ def run_clip(
     return {"truth": seq.joints3d, "est": out, "cost": cost}
 
 
-def _offline_rows(seq, args, out: dict, frames: int) -> dict:
-    """Naive lifting, the per-frame, Gaussian and offline rows into ``out``; their costs."""
+def _baseline_rows(seq, args, out: dict) -> tuple[pt.Tracker, pt.TrackResult]:
+    """The naive lifting, MHT_h per-frame and Gaussian rows into ``out``. The per-frame pass is
+    that of an offline run without relabelling (the paper's tracker on the detections as
+    they come); that tracker and its result are returned."""
     pts, flags = pt.lift_sequence(*args, seq.intrinsics)
     out["naive lifting"] = pt.naive_lifting(pts, flags)
-    out["MHT_h offline, L/R unarbitrated"] = pt.track(
-        *args, seq.intrinsics, sides=pt.SideSettings(arbitrate=False)
-    ).keypoints3d
-    out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
-    # Without relabelling: its per-frame pass is the paper's tracker on the detections as
-    # they come (the per-frame and Gaussian rows).
     tr = pt.Tracker(seq.intrinsics, mode="offline", sides=None)
     off = tr.run(*args)
     out["MHT_h per-frame"] = off.per_frame_keypoints3d
     out["MHT_h + Gaussian"] = pt.gaussian_smoothed(off.per_frame_keypoints3d, 2.0)
+    return tr, off
+
+
+def _offline_rows(seq, args, out: dict, frames: int) -> dict:
+    """Naive lifting, the per-frame, Gaussian and offline rows into ``out``; their costs."""
+    tr, off = _baseline_rows(seq, args, out)
+    out["MHT_h offline, L/R unarbitrated"] = pt.track(
+        *args, seq.intrinsics, sides=pt.SideSettings(arbitrate=False)
+    ).keypoints3d
+    out["MHT_h offline, kp shape"] = pt.track(*args, seq.intrinsics, refine=None).keypoints3d
     out["MHT_h offline, no L/R"] = off.keypoints3d
     cost = _offline_default(seq, args, out)
     cost.update({"step_ms": off.ms_per_frame, "offline_ms": tr.smooth_s * 1000 / frames})
