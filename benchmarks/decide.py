@@ -15,9 +15,13 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
     python benchmarks/decide.py OUT.jsonl --variants sides:arms+legs,sides:arms+legs+torso
     python benchmarks/decide.py OUT.jsonl --part 0 --parts 2 ...  # two processes
     python benchmarks/decide.py OUT.jsonl --real-seeds 100-123 ...  # other tuning clips
+    python benchmarks/decide.py OUT.jsonl --mode per-frame --variants default,alllm,lvm
 
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
+``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
+no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
+(``SmoothSettings(online_accel_std=X)``, m/s^2),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
@@ -60,6 +64,17 @@ def settings(variant: str) -> dict:
         return {}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
+    if variant.startswith("oacc"):
+        try:
+            return {"motion": pt.SmoothSettings(online_accel_std=float(variant[4:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant == "lvm":
+        return {"config": pt.TrackerConfig.recommended("lvm")}
+    if variant == "alllm-norefit":
+        return {"config": pt.TrackerConfig(all_landmarks_hypothesis=True, consensus_refit=False)}
+    if variant == "alllm":
+        return {"config": pt.TrackerConfig(all_landmarks_hypothesis=True)}
     if variant == "norefit":
         return {"config": pt.TrackerConfig(consensus_refit=False)}
     if variant == "kept":
@@ -79,8 +94,8 @@ def settings(variant: str) -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
-        f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'kept', "
-        "'settleN', 'bandM', 'sides:G+G...'"
+        f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
+        "'alllm-norefit', 'lvm', 'oaccX', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
     )
 
 
@@ -88,7 +103,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", help="JSON lines, appended to")
     ap.add_argument("--variants", default="kept,settle1")
-    ap.add_argument("--mode", choices=("offline", "online"), default="offline")
+    ap.add_argument("--mode", choices=("offline", "online", "per-frame"), default="offline")
     ap.add_argument("--tracker-seeds", default="0,1")
     ap.add_argument("--part", type=int, default=0)
     ap.add_argument("--parts", type=int, default=1)

@@ -47,6 +47,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "reseed": False,
     "consensus_refit": False,
     "limb_hypotheses": 0,
+    "all_landmarks_hypothesis": False,
     "occlusion_gate": False,
     "depth_confidence": 0.0,
     "reinit_keep_facing": 0,
@@ -178,6 +179,15 @@ class TrackerConfig(eqx.Module):
     more hypothesis in the same batch: the previous output on the landmarks within
     ``consensus_distance`` of its keypoints, scored with the others; if it wins it takes the
     best hypothesis' place, as the refit does. Not in the paper."""
+    all_landmarks_hypothesis: bool = eqx.field(default=False, static=True)
+    """Opt-in (not in the paper): hypothesis 0 of the N fits every landmark, as LVM does,
+    instead of a weighted subset; Delta decides between it and the others, and it is reseeded
+    like them. Per-frame on wide real-motion tuning clips (seeds 112-159, 96 runs) D fell
+    89.1 -> 88.5 mm clean and 122.9 -> 120.8 occluded, and MHT_h was worse than LVM on 4
+    clips instead of 7; but offline and online (seeds 160-173) it failed the rule written
+    before the runs (offline clean +1.6 mm, one clip with a 22-frame swap; online more runs
+    worse than better by 5 mm), so it is not the default (benchmarks/README.md, "One
+    hypothesis on every landmark"). Without the consensus refit it does not replace it."""
     limb_hypotheses: int = eqx.field(default=0, static=True)
     """S of the N hypotheses restart every frame from the previous output with each limb
     turned onto this frame's 3D landmarks: as labelled, then with both arms and legs, the

@@ -241,7 +241,8 @@ def landmark_subsets(
     previous: Float[Array, "hyp kpt 3"],
 ) -> tuple[Bool[Array, "hyp kpt"], Bool[Array, "hyp kpt"]]:
     """(use3d, use2d) of every hypothesis: the MHT's landmark subsets, drawn by
-    :func:`sample_subset` from :func:`landmark_weights`; all landmarks for LVM.
+    :func:`sample_subset` from :func:`landmark_weights`; all landmarks for LVM (and for
+    hypothesis 0 with ``config.all_landmarks_hypothesis``).
 
     Returns:
         (use3d, use2d), each (hyp, kpt) boolean; ``use3d`` implies F_i, ``use2d`` implies f_i.
@@ -254,4 +255,7 @@ def landmark_subsets(
     keys = jax.random.split(key, (N, 2))
     use3d = jax.vmap(sample_subset, in_axes=(0, 0, None))(keys[:, 0], W, F)
     use2d = jax.vmap(sample_subset, in_axes=(0, 0, None))(keys[:, 1], w, f)
+    if config.all_landmarks_hypothesis and N > 1:
+        # Hypothesis 0 fits every landmark, as LVM does (opt-in; not in the paper).
+        use3d, use2d = use3d.at[0].set(F), use2d.at[0].set(f)
     return use3d, use2d

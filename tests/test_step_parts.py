@@ -330,6 +330,18 @@ def test_lvm_selects_every_available_landmark(scene):
     assert (np.asarray(u2) == np.asarray(lm.detected)[None]).all()
 
 
+def test_all_landmarks_hypothesis_takes_every_landmark_and_leaves_the_others(scene):
+    """Opt-in: hypothesis 0 fits every landmark (as LVM); the other hypotheses keep the
+    weighted draws they get without it (same key)."""
+    lm, args = scene["lm"], (KEYS[0], SHAPE, INTR, scene["depth"], scene["lm"], scene["previous"])
+    on = _config("mht_h", all_landmarks_hypothesis=True)
+    a3, a2 = map(np.asarray, landmark_subsets(on, *args))
+    b3, b2 = map(np.asarray, landmark_subsets(_config("mht_h"), *args))
+    assert (a3[0] == np.asarray(lm.has_depth)).all() and (a2[0] == np.asarray(lm.detected)).all()
+    assert b3[0].sum() < a3[0].sum()  # without it, hypothesis 0 draws a subset
+    assert (a3[1:] == b3[1:]).all() and (a2[1:] == b2[1:]).all()
+
+
 # ---------------------------------------------------------------------------------------------
 # The agreement read by the track-loss test
 
