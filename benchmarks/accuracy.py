@@ -252,14 +252,14 @@ SETTINGS = {
     "MHT_r (paper)": "the paper's method alone, its best: N=20, r=0.05, R=0.15",
     "MHT_g (paper)": "the paper's method alone, its best: N=5, r=0.05, R=0.15",
     "MHT_h (paper)": "the paper's method alone, its best: N=5, r=R=0",
-    "LVM": "LVM with our observation additions (surface offset, unknown depth, floor)",
+    "LVM": "LVM with our observation additions (surface offset, unknown depth, floor, depth band)",
     "MHT_r": "N=20, r=0.05, R=0.15 with all our additions",
     "MHT_g": "N=5, r=0.05, R=0.15 with all our additions",
     "MHT_h N=5": "shipped MHT_h with the paper's N=5",
     "MHT_h": "**shipped default**: N=10, all our additions, l2 loss, 4 LM steps",
     "LVM +refine": "LVM + dense refinement (3 steps)",
     "MHT_h +refine": "shipped + dense refinement (3 steps)",
-    "naive": "each keypoint at its own depth (no model)",
+    "naive": "each keypoint at its own depth (no model; the shipped lifting, depth band included)",
 }
 
 
