@@ -229,3 +229,25 @@ def test_video_panel_flag(command, capsys):
     with pytest.raises(SystemExit) as exit_:
         parse("--video-panel", "front")
     assert exit_.value.code == 2 and "--video-panel" in capsys.readouterr().err
+
+
+def test_line_plot_draws_series_past_the_palette_dashed():
+    """Eleven series: the eleventh repeats the first one's colour, so it is drawn dashed (gaps
+    of background along its line), the first solid."""
+    from posetrack.app import line_plot
+    from posetrack.app._viz import PALETTE
+
+    x = [0.0, 10.0]
+    series = {f"s{k}": (x, [float(k), float(k)]) for k in range(11)}
+    img = line_plot(series, size=(400, 300), ylim=(-1.0, 11.0))
+
+    def row_pixels(level):
+        # The plot maps y linearly between the frame's top (40) and bottom (300 - 55).
+        y = int(300 - 55 - (level + 1.0) / 12.0 * (300 - 40 - 55))
+        return img[y, 90:300]  # inside the plot, clear of the end markers
+
+    colour = np.array(PALETTE[0], np.uint8)
+    solid = (np.abs(row_pixels(0).astype(int) - colour).sum(-1) < 60).mean()
+    dashed = (np.abs(row_pixels(10).astype(int) - colour).sum(-1) < 60).mean()
+    assert solid > 0.95, solid
+    assert 0.3 < dashed < 0.8, dashed

@@ -152,7 +152,18 @@ PALETTE = (
     (188, 189, 34),
     (23, 190, 207),
 )
-"""Ten distinguishable line colours (RGB), in series order."""
+"""Ten distinguishable line colours (RGB), in series order; :func:`line_plot` draws the
+series past the tenth dashed, with hollow markers."""
+
+
+def _dashed_line(img: np.ndarray, a, b, color, thickness: int, dash: int = 8) -> None:
+    """A dashed segment from pixel ``a`` to ``b`` (dashes and gaps of ``dash`` pixels)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    n = max(int(np.linalg.norm(b - a) // dash), 1)
+    for i in range(0, n, 2):
+        p = a + (b - a) * i / n
+        q = a + (b - a) * min(i + 1, n) / n
+        cv2.line(img, tuple(map(int, p)), tuple(map(int, q)), color, thickness, cv2.LINE_AA)
 
 
 def line_plot(
@@ -214,14 +225,22 @@ def line_plot(
     cv2.putText(img, ylabel, (5, top - 8), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     for k, (label, (x, y)) in enumerate(series.items()):
         color = PALETTE[k % len(PALETTE)]
+        # Past the palette's ten colours, a series repeats a colour: dashed, hollow markers.
+        dashed = k >= len(PALETTE)
         pts = [px(a, b) for a, b in zip(x, y) if np.isfinite(b)]
         for a, b in zip(pts[:-1], pts[1:]):
-            cv2.line(img, a, b, color, 2, cv2.LINE_AA)
+            if dashed:
+                _dashed_line(img, a, b, color, 2)
+            else:
+                cv2.line(img, a, b, color, 2, cv2.LINE_AA)
         if len(pts) <= 20:
             for p in pts:
-                cv2.circle(img, p, 4, color, -1, cv2.LINE_AA)
+                cv2.circle(img, p, 4, color, 2 if dashed else -1, cv2.LINE_AA)
         ly = top + 12 + 20 * k
         lx = W - legend_w + 5
-        cv2.line(img, (lx, ly), (lx + 25, ly), color, 3)
+        if dashed:
+            _dashed_line(img, (lx, ly), (lx + 25, ly), color, 3, dash=5)
+        else:
+            cv2.line(img, (lx, ly), (lx + 25, ly), color, 3)
         cv2.putText(img, label, (lx + 32, ly + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     return img
