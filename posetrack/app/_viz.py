@@ -156,8 +156,14 @@ PALETTE = (
 series past the tenth dashed, with hollow markers."""
 
 
-def _dashed_line(img: np.ndarray, a, b, color, thickness: int, dash: int = 8) -> None:
-    """A dashed segment from pixel ``a`` to ``b`` (dashes and gaps of ``dash`` pixels)."""
+def _line(
+    img: np.ndarray, a, b, color, thickness: int, dash: int = 0, line_type: int = cv2.LINE_AA
+) -> None:
+    """A segment from pixel ``a`` to ``b``: solid, or with ``dash`` > 0 dashed (dashes and gaps
+    of ``dash`` pixels, always antialiased)."""
+    if dash <= 0:
+        cv2.line(img, tuple(map(int, a)), tuple(map(int, b)), color, thickness, line_type)
+        return
     a, b = np.asarray(a, float), np.asarray(b, float)
     n = max(int(np.linalg.norm(b - a) // dash), 1)
     for i in range(0, n, 2):
@@ -229,18 +235,12 @@ def line_plot(
         dashed = k >= len(PALETTE)
         pts = [px(a, b) for a, b in zip(x, y) if np.isfinite(b)]
         for a, b in zip(pts[:-1], pts[1:]):
-            if dashed:
-                _dashed_line(img, a, b, color, 2)
-            else:
-                cv2.line(img, a, b, color, 2, cv2.LINE_AA)
+            _line(img, a, b, color, 2, dash=8 if dashed else 0)
         if len(pts) <= 20:
             for p in pts:
                 cv2.circle(img, p, 4, color, 2 if dashed else -1, cv2.LINE_AA)
         ly = top + 12 + 20 * k
         lx = W - legend_w + 5
-        if dashed:
-            _dashed_line(img, (lx, ly), (lx + 25, ly), color, 3, dash=5)
-        else:
-            cv2.line(img, (lx, ly), (lx + 25, ly), color, 3)
+        _line(img, (lx, ly), (lx + 25, ly), color, 3, dash=5 if dashed else 0, line_type=cv2.LINE_8)
         cv2.putText(img, label, (lx + 32, ly + 5), font, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     return img
