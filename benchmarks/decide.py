@@ -21,7 +21,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
-(``SmoothSettings(online_accel_std=X)``, m/s^2),
+(``SmoothSettings(online_accel_std=X)``, m/s^2), ``anchorX``
+(``SideSettings.for_mode("online", online_anchor=X)``, metres; online only),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
@@ -69,6 +70,11 @@ def settings(variant: str) -> dict:
             return {"motion": pt.SmoothSettings(online_accel_std=float(variant[4:]))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("anchor"):
+        try:  # online only (the labelling's anchor after a kept exchange); arms, legs, torso
+            return {"sides": pt.SideSettings.for_mode("online", online_anchor=float(variant[6:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -95,7 +101,7 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
     )
 
 

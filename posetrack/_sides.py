@@ -187,6 +187,14 @@ class SideSettings:
     often than a swap (on a wide tuning clip one was kept by a Delta sum 0.7 % lower). 1: the
     depth alone decides (before 2026-11-26 evening). Chosen on tuning clips by a rule written
     before the run (benchmarks/README.md)."""
+    online_anchor: float = 0.0
+    """Online: when the depth keeps an exchange, the forward pass is anchored to it: the
+    exchanged reading of the judged groups leads the "as detected" one by at least this (m)
+    from then on, so it holds until the detections jump back. Without it (0) the forward
+    pass keeps its own margin, which a stretch where the two sides' detections coincide (a
+    knee reported on the other knee for a dozen frames) leaves near zero: the exchange the
+    depth kept is dropped a frame later and the swap is fitted as detected. Not in the
+    paper."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -227,10 +235,14 @@ class SideSettings:
                     f"SideSettings: {name} must be an int >= {least} (frames), got {n!r}"
                 )
         names = ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin")
-        for name in (*names, "arbitrate_margin"):
+        for name in (*names, "arbitrate_margin", "online_anchor"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"SideSettings: {name} must be a finite number, got {v!r}")
+        if self.online_anchor < 0:
+            raise ValueError(
+                f"SideSettings: online_anchor must be >= 0 (m), got {self.online_anchor!r}"
+            )
         if self.switch_cost <= 0 or self.cap <= 0 or self.speed < 0 or self.two_sided_margin < 0:
             raise ValueError(
                 "SideSettings: switch_cost and cap must be positive, speed and "
@@ -310,6 +322,16 @@ class SideLabeller:
         """``(groups,)`` metres: the cost of "exchanged" minus that of "as detected" after the
         last frame (negative: exchanged is the cheaper reading)."""
         return self._cost[:, 1] - self._cost[:, 0]
+
+    def anchor(self, groups: np.ndarray, exchanged: np.ndarray, margin: float) -> None:
+        """Make each of ``groups`` (``bool (groups,)``) read as ``exchanged`` says (``bool
+        (groups,)``), ahead of the other labelling by at least ``margin`` (m): evidence from
+        outside the 2D continuity (the depth's judgement) replaces a near-tie."""
+        for g in np.flatnonzero(np.asarray(groups, bool)):
+            cost = self._cost[g] - self._cost[g].min()
+            win = int(bool(exchanged[g]))
+            cost[win], cost[1 - win] = 0.0, max(cost[1 - win], float(margin))
+            self._cost[g] = cost
 
     def relabel(
         self, keypoints2d: np.ndarray, confidence: np.ndarray, exchanged: np.ndarray

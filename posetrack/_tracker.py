@@ -1198,6 +1198,11 @@ class Tracker:
             self.side_spans.append(arb.report(self._frames_seen, keep is arb.exchanged))
             self._judged_rows = keep.rows
         self._restore_online(keep.snapshot)
+        if arb.left <= 0 and keep is arb.exchanged and self.sides.online_anchor > 0:
+            # The depth kept the exchange: the next frames continue it until the detections
+            # jump back (SideSettings.online_anchor), not only while the 2D margin favours it.
+            self._labeller.anchor(arb.groups, arb.groups, self.sides.online_anchor)
+            self.exchanged = self.exchanged | arb.groups
         return keep.out
 
     def _judged_row(self, out: tuple) -> tuple:
@@ -1664,8 +1669,11 @@ class Tracker:
                 tt = t - len(rows) + 1 + j
                 if tt >= 0:
                     self._put_row(out, tt, e, s, ex, person, pose=tt > t - self.lag, held=held)
+        # The labelling this frame was fitted with (a judgement's end may have anchored the
+        # next frames' labelling already: SideSettings.online_anchor).
+        exchanged = rows[-1][1] if rows else self.exchanged
         self._record_frame(
-            out, kept, n_keep, T, confidence, progress, t, est, st, self.exchanged, self._person,
+            out, kept, n_keep, T, confidence, progress, t, est, st, exchanged, self._person,
             self._depth_fit, held=held,
         )  # fmt: skip
 
