@@ -161,10 +161,38 @@ def test_settings_and_labeller_reject_bad_values():
         pt.SideSettings(online_rejudge=2.5)
     with pytest.raises(ValueError, match="online_min_held"):
         pt.SideSettings(online_min_held=0)
+    with pytest.raises(ValueError, match="online_anchor"):
+        pt.SideSettings(online_anchor=-0.1)
     with pytest.raises(ValueError, match="fx"):
         pt.SideLabeller(0.0)
     with pytest.raises(TypeError, match="SideSettings"):
         pt.SideLabeller(FX, {"switch_cost": 0.01})
+
+
+def test_an_anchor_holds_an_exchange_that_coinciding_sides_left_ambiguous():
+    """While the right arm is reported on the left one, both labellings fit the detections
+    alike and the forward pass forgets which side is which: it misses the swap that follows
+    and reads the swap's end as an exchange. Anchored to the exchange where it starts (as the
+    online tracker does when the depth keeps it, ``SideSettings.online_anchor``), it holds the
+    exchange to the swap's end and no longer."""
+    kp, conf, p3, has = _walk()
+    together, swapped = np.arange(20, 35), np.arange(35, 56)
+    for a, b in ARMS:
+        kp[together, a] = kp[together, b] + 1.0
+    bad_kp, bad_conf = _swap(kp, conf, swapped, ARMS)
+    reads = {}
+    for anchored in (False, True):
+        lab = pt.SideLabeller(FX)
+        ex = []
+        for t in range(len(kp)):
+            ex.append(lab.update(bad_kp[t], bad_conf[t], p3[t], has[t])[2])
+            if anchored and t == swapped[0]:
+                lab.anchor(np.array([True, False]), np.array([True, False]), 0.5)
+                assert lab.margin[0] <= -0.5 and lab.margin[1] > 0.5  # the legs untouched
+        reads[anchored] = np.stack(ex)[:, 0]
+    free, held = reads[False], reads[True]
+    assert free[swapped[1:]].mean() < 0.2 and free[56:70].mean() > 0.8, free.astype(int)
+    assert held[swapped[1:]].all() and not held[56:].any(), held.astype(int)
 
 
 def test_reset_forgets_the_past():

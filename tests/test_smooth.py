@@ -591,6 +591,40 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     assert n_fixed < pt.swapped_limb_frames(raw.keypoints3d, gt)
 
 
+def test_online_a_kept_exchange_anchors_the_labelling(clip, monkeypatch):
+    """With ``SideSettings.online_anchor`` the forward labelling is anchored to an exchange
+    the depth kept, once, at the judgement's end, for the judged groups only; where the 2D
+    margin already holds the exchange (a clean arm swap) nothing else changes, bit for bit.
+    Without it (the default) the labelling is never anchored."""
+    sw = np.arange(12, 28)
+    kp, conf = _arm_swap(clip, sw)
+    calls = []
+    anchor = pt.SideLabeller.anchor
+
+    def recorded(self, groups, exchanged, margin):
+        calls.append((self.settings.groups, np.array(groups), margin))
+        anchor(self, groups, exchanged, margin)
+
+    monkeypatch.setattr(pt.SideLabeller, "anchor", recorded)
+    runs = {}
+    for margin in (0.0, 0.5):
+        sides = pt.SideSettings.for_mode("online", online_anchor=margin)
+        tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
+        runs[margin] = tr.run(clip.depth, kp, conf), tr.side_spans
+        if margin == 0.0:
+            assert calls == []
+    k = pt.ONLINE_LAG + 1
+    assert [s[:2] for s in runs[0.5][1]][:1] == [(12, 12 + k)] and runs[0.5][1][0][-1]
+    assert len(calls) == 1, calls
+    groups, judged, margin = calls[0]
+    assert groups == ("arms", "legs", "torso") and judged.tolist() == [True, False, False]
+    assert margin == 0.5
+    (plain, plain_spans), (anchored, anchored_spans) = runs[0.0], runs[0.5]
+    assert plain_spans == anchored_spans
+    np.testing.assert_array_equal(anchored.exchanged, plain.exchanged)
+    np.testing.assert_array_equal(anchored.keypoints3d, plain.keypoints3d)
+
+
 def _misread(monkeypatch, clip, arms: range, legs: range) -> None:
     """Make the forward labelling read correct labels exchanged: arms in frames ``arms``, legs
     in frames ``legs`` (2D continuity does so on occluded side views)."""
