@@ -22,7 +22,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``anchorX``
-(``SideSettings.for_mode("online", online_anchor=X)``, metres; online only),
+(``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
+(``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
@@ -75,6 +76,13 @@ def settings(variant: str) -> dict:
             return {"sides": pt.SideSettings.for_mode("online", online_anchor=float(variant[6:]))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("amarg"):
+        try:  # the depth's judgement needs the exchanged Delta sum lower by this margin
+            return {
+                "sides": pt.SideSettings.for_mode("online", arbitrate_margin=float(variant[5:]))
+            }
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -101,7 +109,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'amargX', 'kept', 'settleN', 'bandM', "
+        "'sides:G+G...'"
     )
 
 

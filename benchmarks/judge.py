@@ -1,0 +1,184 @@
+"""How often the online left/right judge is right (issue 12, a diagnosis).
+
+Online (``Tracker(mode="online")``) a group's labels are exchanged only after the depth judged
+the exchange: where the forward left/right pass newly reads a group exchanged, the next lag + 1
+frames are tracked both ways and the lower Delta summed wins (``posetrack._sides``). This
+tracks wide real-motion tuning clips with the shipped online tracker and compares every
+judgement with the truth: were the detections of that group really exchanged (against the
+generator's joints projected into the image) in most of the judged frames, and was the
+tracker's own pose of that group already swapped when the judgement began? It also counts
+the frames whose detections were exchanged while the tracker fitted them as detected, split by
+whether a judgement refused them or the forward pass never read them.
+
+Tuning seeds only (wide real motion, ``tune.REAL``, as ``decide.py --real-seeds``); clean and
+occluded (level 2); 120 frames at 30 fps, 320x240.
+
+    python benchmarks/judge.py --seeds 112-123 --out benchmarks/results/judge.json
+    python benchmarks/judge.py --seeds 112-123 --part 0 --parts 2 --out A.json  # two processes
+    python benchmarks/judge.py --merge A.json B.json --out benchmarks/results/judge.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from seeds import parse_seeds
+from tune import check_seeds, real_motion
+
+import posetrack as pt
+from posetrack import _tracker
+from posetrack.app import machine_info
+
+#: Wrist/elbow, knee/ankle and shoulder/hip pairs, as ``SideSettings.for_mode("online")``
+#: groups them (arms, legs, torso).
+GROUPS = ("arms", "legs", "torso")
+#: Image distance (px) by which the exchanged pairing must beat the detected one before the
+#: detections count as exchanged against the truth (detector noise is a few px).
+SWAP_PX = 4.0
+
+
+def detections_exchanged(seq) -> np.ndarray:
+    """``bool (T, 3)``: per frame and group, the detections of at least one of the group's
+    pairs lie nearer the other side's true joints (projected) than their own by SWAP_PX."""
+    K, J = seq.intrinsics, seq.joints3d
+    uv = np.stack([K.fx * J[..., 0] / J[..., 2] + K.cx, K.fy * J[..., 1] / J[..., 2] + K.cy], -1)
+    kp, conf = seq.keypoints2d, seq.confidence
+    out = np.zeros((len(kp), len(GROUPS)), bool)
+    for g, name in enumerate(GROUPS):
+        for right, left in pt.SIDE_GROUPS[name]:
+            seen = (conf[:, right] > 0.1) & (conf[:, left] > 0.1)
+            own = np.linalg.norm(kp[:, right] - uv[:, right], axis=-1) + np.linalg.norm(
+                kp[:, left] - uv[:, left], axis=-1
+            )
+            other = np.linalg.norm(kp[:, right] - uv[:, left], axis=-1) + np.linalg.norm(
+                kp[:, left] - uv[:, right], axis=-1
+            )
+            out[:, g] |= seen & (other < own - SWAP_PX)
+    return out
+
+
+def pose_exchanged(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """``bool (T, 3)``: per frame and group, the tracker's 3D keypoints of at least one pair
+    lie nearer the other side's true joints than their own by more than 0.1 m (as
+    ``pt.swapped_limb_frames`` counts a swap)."""
+    out = np.zeros((len(est), len(GROUPS)), bool)
+    for g, name in enumerate(GROUPS):
+        for right, left in pt.SIDE_GROUPS[name]:
+            own = np.linalg.norm(est[:, right] - truth[:, right], axis=-1) + np.linalg.norm(
+                est[:, left] - truth[:, left], axis=-1
+            )
+            other = np.linalg.norm(est[:, right] - truth[:, left], axis=-1) + np.linalg.norm(
+                est[:, left] - truth[:, right], axis=-1
+            )
+            out[:, g] |= np.nan_to_num(own - other, nan=0.0) > 0.1
+    return out
+
+
+def run_clip(seed: int, occlusion: int) -> dict:
+    seq = pt.synth.generate(
+        seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
+        width=320, height=240, with_rgb=False, variety="wide",
+    )  # fmt: skip
+    judged: list[tuple] = []  # (start, stop, groups, kept, Delta summed detected, exchanged)
+    report = _tracker._OnlineArbitration.report
+
+    def recorded(self, frames_seen, chosen):  # the judged groups, which side_spans leaves out
+        out = report(self, frames_seen, chosen)
+        judged.append((out[0], out[1], np.array(self.groups), bool(chosen), out[2], out[3]))
+        return out
+
+    _tracker._OnlineArbitration.report = recorded
+    try:
+        tr = pt.Tracker(seq.intrinsics, mode="online", seed=0)
+        res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+    finally:
+        _tracker._OnlineArbitration.report = report
+    det = detections_exchanged(seq)
+    pose = pose_exchanged(res.keypoints3d, seq.joints3d)
+    counts = {k: 0 for k in ("swap kept", "swap refused", "correct kept", "correct refused")}
+    pose_wrong_before = {k: 0 for k in counts}
+    spans = []
+    for start, stop, groups, kept, delta_detected, delta_exchanged in judged:
+        for g in np.flatnonzero(groups):
+            frames = slice(max(start, 0), stop)
+            truly = bool(det[frames, g].mean() > 0.5)
+            key = f"{'swap' if truly else 'correct'} {'kept' if kept else 'refused'}"
+            counts[key] += 1
+            if start > 0 and pose[start - 1, g]:
+                pose_wrong_before[key] += 1
+            spans.append({
+                "start": int(start), "stop": int(stop), "group": GROUPS[g], "kept": kept,
+                "truly_exchanged": truly, "delta_detected": delta_detected,
+                "delta_exchanged": delta_exchanged,
+            })  # fmt: skip
+    fitted_ex = np.asarray(res.exchanged, bool)[:, : len(GROUPS)]
+    missed = det & ~fitted_ex  # exchanged detections fitted as detected
+    refused = np.zeros_like(missed)
+    for start, stop, groups, kept, *_ in judged:
+        if not kept:
+            refused[max(start, 0) : stop] |= groups[None, :]
+    return {
+        "seed": seed, "motion": real_motion(seed), "occlusion": occlusion,
+        "D_mm": pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm,
+        "swapped_limb_frames": pt.swapped_limb_frames(res.keypoints3d, seq.joints3d),
+        "judgements": counts, "pose_swapped_before": pose_wrong_before,
+        "detections_exchanged": int(det.sum()),
+        "exchanged_fitted_as_detected": int(missed.sum()),
+        "of_which_in_refused_judgements": int((missed & refused).sum()),
+        "correct_fitted_exchanged": int((~det & fitted_ex).sum()),
+        "spans": spans,
+    }  # fmt: skip
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", default="112-123", help="wide real motion tuning seeds")
+    ap.add_argument("--part", type=int, default=0)
+    ap.add_argument("--parts", type=int, default=1)
+    ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "judge.json"))
+    a = ap.parse_args()
+    if a.merge:
+        runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
+    else:
+        seeds = parse_seeds(a.seeds)
+        try:
+            check_seeds(seeds)
+        except ValueError as e:
+            ap.error(str(e))
+        todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
+        runs, t0 = [], time.perf_counter()
+        for seed, occ in todo:
+            runs.append(run_clip(seed, occ))
+            print(f"[{time.perf_counter() - t0:5.0f}s] {json.dumps(runs[-1])}", file=sys.stderr)
+    print(f"\nOnline judgements against the truth, wide real motion tuning clips, {len(runs)} runs")
+    print(f"{'':18s} {'judged':>7s} {'pose already swapped':>21s}")
+    table = {}
+    for key in ("swap kept", "swap refused", "correct kept", "correct refused"):
+        n = sum(r["judgements"][key] for r in runs)
+        before = sum(r["pose_swapped_before"][key] for r in runs)
+        table[key] = {"judged": n, "pose_swapped_before": before}
+        print(f"{key:18s} {n:7d} {before:21d}")
+    frames = {
+        k: sum(r[k] for r in runs)
+        for k in ("detections_exchanged", "exchanged_fitted_as_detected",
+                  "of_which_in_refused_judgements", "correct_fitted_exchanged")
+    }  # fmt: skip
+    for k, v in frames.items():
+        print(f"{k.replace('_', ' ')}: {v} group-frames")
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps({
+        "benchmark": "judge", "table": table, "frames": frames, "runs": runs,
+        "machine": machine_info(),
+    }, indent=1))  # fmt: skip
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
