@@ -23,7 +23,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
-(``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online),
+(``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
+(``SideSettings.for_mode("online", online_frames=N)``),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
@@ -83,6 +84,11 @@ def settings(variant: str) -> dict:
             }
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("oframes"):
+        try:  # frames the online judge tracks both ways (default: the lag + 1)
+            return {"sides": pt.SideSettings.for_mode("online", online_frames=int(variant[7:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -109,8 +115,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'amargX', 'kept', 'settleN', 'bandM', "
-        "'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'amargX', 'oframesN', 'kept', 'settleN', "
+        "'bandM', 'sides:G+G...'"
     )
 
 
