@@ -193,8 +193,11 @@ class SideSettings:
     from then on, so it holds until the detections jump back. Without it (0) the forward
     pass keeps its own margin, which a stretch where the two sides' detections coincide (a
     knee reported on the other knee for a dozen frames) leaves near zero: the exchange the
-    depth kept is dropped a frame later and the swap is fitted as detected. Not in the
-    paper."""
+    depth kept is dropped a frame later and the swap is fitted as detected. Opt-in: it holds
+    the depth's wrong verdicts as long as its right ones, and on 32 wide real tuning runs it
+    made D worse by 1.4-1.9 mm and the swapped-limb frames 180 -> 260 at 0.25 / 0.5 m
+    (benchmarks/README.md, "Online: a kept exchange held until the detections jump back").
+    Not in the paper."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
