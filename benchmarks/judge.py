@@ -31,7 +31,6 @@ from seeds import parse_seeds
 from tune import check_seeds, real_motion
 
 import posetrack as pt
-from posetrack import _tracker
 from posetrack.app import machine_info
 
 #: Wrist/elbow, knee/ankle and shoulder/hip pairs, as ``SideSettings.for_mode("online")``
@@ -84,20 +83,15 @@ def run_clip(seed: int, occlusion: int) -> dict:
         seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
         width=320, height=240, with_rgb=False, variety="wide",
     )  # fmt: skip
-    judged: list[tuple] = []  # (start, stop, groups, kept, Delta summed detected, exchanged)
-    report = _tracker._OnlineArbitration.report
-
-    def recorded(self, frames_seen, chosen):  # the judged groups, which side_spans leaves out
-        out = report(self, frames_seen, chosen)
-        judged.append((out[0], out[1], np.array(self.groups), bool(chosen), out[2], out[3]))
-        return out
-
-    _tracker._OnlineArbitration.report = recorded
-    try:
-        tr = pt.Tracker(seq.intrinsics, mode="online", seed=0)
-        res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
-    finally:
-        _tracker._OnlineArbitration.report = report
+    tr = pt.Tracker(seq.intrinsics, mode="online", seed=0)
+    res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+    # (start, stop, groups, kept, Delta summed as detected, Delta summed exchanged)
+    judged = [
+        (start, stop, groups, kept, delta_detected, delta_exchanged)
+        for (start, stop, delta_detected, delta_exchanged, kept), groups in zip(
+            tr.side_spans, tr.side_span_groups, strict=True
+        )
+    ]
     det = detections_exchanged(seq)
     pose = pose_exchanged(res.keypoints3d, seq.joints3d)
     counts = {k: 0 for k in ("swap kept", "swap refused", "correct kept", "correct refused")}

@@ -661,6 +661,10 @@ class Tracker:
         summed as detected, Delta summed exchanged, exchange kept)``: after an offline
         :meth:`run`, the stretches the two-sided labelling read exchanged; online, the first
         frames of each exchange the forward pass read (since the last :meth:`run`)."""
+        self.side_span_groups: list[np.ndarray] = []
+        """Per entry of :attr:`side_spans`, ``bool (groups,)``: which :attr:`sides` groups the
+        stretch judged (online, the groups newly read exchanged; offline, those the two-sided
+        labelling read exchanged in any of its frames)."""
         self._forget_person()
         self._reset_motion()
 
@@ -1196,6 +1200,7 @@ class Tracker:
         if arb.left <= 0:
             self._arbitration = None
             self.side_spans.append(arb.report(self._frames_seen, keep is arb.exchanged))
+            self.side_span_groups.append(arb.groups.copy())
             self._judged_rows = keep.rows
         self._restore_online(keep.snapshot)
         if arb.left <= 0 and keep is arb.exchanged and self.sides.online_anchor > 0:
@@ -1387,7 +1392,7 @@ class Tracker:
         n_keep = 0 if self.refine is None or self.mode != "offline" else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
-        self.side_spans, self._judged_rows = [], None
+        self.side_spans, self.side_span_groups, self._judged_rows = [], [], None
         self.reinit_flip_frames = ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
@@ -1725,6 +1730,7 @@ class Tracker:
         saved, kept_before = out.copy_span(start, stop), dict(kept)
         frames(None, start, stop)
         delta_ex = out.delta[start:stop].copy()
+        groups = out.exchanged[start:stop].any(axis=0)
         after_ex, span_ex, kept_ex = self._snapshot(), out.copy_span(start, stop), dict(kept)
         self._restore(before)
         out.put_span(start, saved)
@@ -1738,6 +1744,7 @@ class Tracker:
         self.side_spans.append(
             (start, stop, float(np.nansum(delta_as)), float(np.nansum(delta_ex)), chosen)
         )
+        self.side_span_groups.append(groups)
         if chosen:
             self._restore(after_ex)
             out.put_span(start, span_ex)

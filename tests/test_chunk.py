@@ -118,9 +118,15 @@ def test_chunked_offline_run_is_the_frame_by_frame_one():
     for chunk in (1, 16):
         tracker = pt.Tracker(seq.intrinsics, LVM, chunk=chunk)
         res = tracker.run(seq.depth, seq.people2d, seq.people_confidence, progress=None)
-        out[chunk] = res, tracker.side_spans
-    (one, spans_one), (chunked, spans) = out[1], out[16]
+        out[chunk] = res, tracker.side_spans, tracker.side_span_groups
+    (one, spans_one, groups_one), (chunked, spans, groups) = out[1], out[16]
     assert len(spans_one) >= 2 and spans == spans_one
+    # Which groups each stretch judged: those its exchanged reading exchanged, as kept.
+    assert len(groups) == len(spans) and all(g.any() for g in groups)
+    np.testing.assert_array_equal(np.stack(groups), np.stack(groups_one))
+    for (start, stop, *_, kept), g in zip(spans, groups, strict=True):
+        if kept:
+            np.testing.assert_array_equal(g, chunked.exchanged[start:stop].any(axis=0))
     for name in ("keypoints3d", "params", "per_frame_keypoints3d", "status", "exchanged"):
         a, b = getattr(one, name), getattr(chunked, name)
         assert np.array_equal(a, b, equal_nan=True), name

@@ -582,6 +582,8 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     assert [s[:2] for s in tr.side_spans][:1] == [(12, 12 + k)], tr.side_spans
     start, stop, delta_as, delta_ex, kept = tr.side_spans[0]
     assert kept and delta_ex < delta_as
+    assert len(tr.side_span_groups) == len(tr.side_spans)
+    assert tr.side_span_groups[0].tolist() == [True, False]  # the arms, of (arms, legs)
     seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
     assert fixed.exchanged[sw[seen], 0].mean() > 0.9
     assert tr.refine_report is not None and tr.refine_report["frames_used"].max() < 13
