@@ -61,6 +61,15 @@ def clips(real_seeds: list[int] | None = None) -> list[tuple[str, int, str, str]
     return out
 
 
+#: Variants of one online left/right setting (``SideSettings.for_mode("online", ...)``): name
+#: prefix -> (field, type of the number that follows).
+_ONLINE_SIDES = {
+    "anchor": ("online_anchor", float),
+    "amarg": ("arbitrate_margin", float),
+    "oframes": ("online_frames", int),
+}
+
+
 def settings(variant: str) -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
     if variant == "default":
@@ -72,23 +81,13 @@ def settings(variant: str) -> dict:
             return {"motion": pt.SmoothSettings(online_accel_std=float(variant[4:]))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    if variant.startswith("anchor"):
-        try:  # online only (the labelling's anchor after a kept exchange); arms, legs, torso
-            return {"sides": pt.SideSettings.for_mode("online", online_anchor=float(variant[6:]))}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    if variant.startswith("amarg"):
-        try:  # the depth's judgement needs the exchanged Delta sum lower by this margin
-            return {
-                "sides": pt.SideSettings.for_mode("online", arbitrate_margin=float(variant[5:]))
-            }
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    if variant.startswith("oframes"):
-        try:  # frames the online judge tracks both ways (default: the lag + 1)
-            return {"sides": pt.SideSettings.for_mode("online", online_frames=int(variant[7:]))}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    for prefix, (field, kind) in _ONLINE_SIDES.items():
+        if variant.startswith(prefix):
+            try:
+                value = kind(variant[len(prefix) :])
+                return {"sides": pt.SideSettings.for_mode("online", **{field: value})}
+            except ValueError as e:
+                raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":

@@ -192,23 +192,28 @@ def jitter(estimate: np.ndarray, *, joints: tuple[int, ...] = BODY_JOINTS) -> fl
 
 
 def swapped_limbs(
-    estimate: np.ndarray, truth: np.ndarray, *, margin_mm: float = 100.0
+    estimate: np.ndarray,
+    truth: np.ndarray,
+    *,
+    margin_mm: float = 100.0,
+    pairs: tuple[tuple[int, int], ...] = LIMB_PAIRS,
 ) -> np.ndarray:
     """Which left/right limb pairs the estimate has swapped, per frame.
 
-    A pair (:data:`LIMB_PAIRS`: elbows, wrists, knees, ankles) counts as swapped when the
-    estimate, with its left and right keypoints exchanged, is closer to the truth by more than
-    ``margin_mm`` (sum of the two keypoints' errors).
+    A pair (``pairs`` of COCO-18 (right, left) indices; by default :data:`LIMB_PAIRS`: elbows,
+    wrists, knees, ankles) counts as swapped when the estimate, with its left and right
+    keypoints exchanged, is closer to the truth by more than ``margin_mm`` (sum of the two
+    keypoints' errors).
 
     Returns:
-        (frame, 4) bool; False where the estimate is NaN.
+        (frame, len(pairs)) bool; False where the estimate is NaN.
     """
     est = np.asarray(estimate, np.float64)
     gt = np.asarray(truth, np.float64)
     if est.shape != gt.shape:
         raise ValueError(f"swapped_limbs: estimate {est.shape} and truth {gt.shape} differ")
-    right = [a for a, _ in LIMB_PAIRS]  # COCO-18 lists the right side first
-    left = [b for _, b in LIMB_PAIRS]
+    right = [a for a, _ in pairs]  # COCO-18 lists the right side first
+    left = [b for _, b in pairs]
     straight = np.linalg.norm(est[:, left] - gt[:, left], axis=-1) + np.linalg.norm(
         est[:, right] - gt[:, right], axis=-1
     )

@@ -326,15 +326,13 @@ class SideLabeller:
         last frame (negative: exchanged is the cheaper reading)."""
         return self._cost[:, 1] - self._cost[:, 0]
 
-    def anchor(self, groups: np.ndarray, exchanged: np.ndarray, margin: float) -> None:
-        """Make each of ``groups`` (``bool (groups,)``) read as ``exchanged`` says (``bool
-        (groups,)``), ahead of the other labelling by at least ``margin`` (m): evidence from
-        outside the 2D continuity (the depth's judgement) replaces a near-tie."""
+    def anchor(self, groups: np.ndarray, margin: float) -> None:
+        """Make each of ``groups`` (``bool (groups,)``) read exchanged, ahead of "as detected"
+        by at least ``margin`` (m): evidence from outside the 2D continuity (the depth kept
+        the exchange) replaces a near-tie."""
         for g in np.flatnonzero(np.asarray(groups, bool)):
             cost = self._cost[g] - self._cost[g].min()
-            win = int(bool(exchanged[g]))
-            cost[win], cost[1 - win] = 0.0, max(cost[1 - win], float(margin))
-            self._cost[g] = cost
+            self._cost[g] = (max(cost[0], float(margin)), 0.0)
 
     def relabel(
         self, keypoints2d: np.ndarray, confidence: np.ndarray, exchanged: np.ndarray

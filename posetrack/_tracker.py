@@ -1206,7 +1206,7 @@ class Tracker:
         if arb.left <= 0 and keep is arb.exchanged and self.sides.online_anchor > 0:
             # The depth kept the exchange: the next frames continue it until the detections
             # jump back (SideSettings.online_anchor), not only while the 2D margin favours it.
-            self._labeller.anchor(arb.groups, arb.groups, self.sides.online_anchor)
+            self._labeller.anchor(arb.groups, self.sides.online_anchor)
             self.exchanged = self.exchanged | arb.groups
         return keep.out
 

@@ -187,7 +187,7 @@ def test_an_anchor_holds_an_exchange_that_coinciding_sides_left_ambiguous():
         for t in range(len(kp)):
             ex.append(lab.update(bad_kp[t], bad_conf[t], p3[t], has[t])[2])
             if anchored and t == swapped[0]:
-                lab.anchor(np.array([True, False]), np.array([True, False]), 0.5)
+                lab.anchor(np.array([True, False]), 0.5)
                 assert lab.margin[0] <= -0.5 and lab.margin[1] > 0.5  # the legs untouched
         reads[anchored] = np.stack(ex)[:, 0]
     free, held = reads[False], reads[True]

@@ -47,6 +47,18 @@ def test_swapped_limbs_needs_the_swap_to_be_closer_by_the_margin():
     assert pt.swapped_limb_frames(est, g, margin_mm=700.0) == 0  # 600 mm gain < 700
 
 
+def test_swapped_limbs_takes_other_pairs():
+    """``pairs`` (e.g. a left/right group's): the shoulders exchanged count there, not among
+    the default limb pairs."""
+    g = _walk_truth(5)
+    g[:, 2] = g[:, 5] + [0.3, 0.0, 0.0]  # shoulders 300 mm apart
+    est = g.copy()
+    est[3, [2, 5]] = g[3, [5, 2]]
+    torso = pt.swapped_limbs(est, g, pairs=pt.SIDE_GROUPS["torso"])
+    assert torso.shape == (5, 2) and torso[3, 0] and torso.sum() == 1
+    assert not pt.swapped_limbs(est, g).any()
+
+
 def test_jitter_and_gaussian_filter():
     still = np.tile(_walk_truth(1), (20, 1, 1))
     assert pt.jitter(still) == pytest.approx(0.0, abs=1e-9)
@@ -603,9 +615,9 @@ def test_online_a_kept_exchange_anchors_the_labelling(clip, monkeypatch):
     calls = []
     anchor = pt.SideLabeller.anchor
 
-    def recorded(self, groups, exchanged, margin):
+    def recorded(self, groups, margin):
         calls.append((self.settings.groups, np.array(groups), margin))
-        anchor(self, groups, exchanged, margin)
+        anchor(self, groups, margin)
 
     monkeypatch.setattr(pt.SideLabeller, "anchor", recorded)
     runs = {}
