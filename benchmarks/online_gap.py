@@ -1,0 +1,152 @@
+"""Where the online mode loses to the offline one (issue 12, a diagnosis).
+
+Both modes run the same per-frame tracker (the MHT step) and then a motion model over its
+poses, so their gap splits into two parts: the per-frame pass (its left/right labelling
+above all: offline reads the recording from both directions, online forwards with the depth
+judging each exchange over lag + 1 frames; and the body shape, which online is refined after
+20 and 60 frames and offline only after the pass) and the motion model (offline: every
+frame's pose fitted jointly with its landmarks; online: the tracker's keypoints smoothed over
+the last 12 frames, published 3 frames late). This tracks each clip four times (offline and
+online, with the shipped left/right relabelling and with none) and reports D of the
+per-frame pass and of the published output for each.
+
+The online per-frame pass is what each ``Tracker.update`` returned (inside an online
+judgement, the reading that led at that frame); the offline one is
+``TrackResult.per_frame_keypoints3d``. D is the mean 3D error over all 18 keypoints and the
+frames that have an estimate (as ``pt.accuracy``), mm.
+
+Tuning seeds only (wide real motion, ``tune.REAL``, as ``decide.py --real-seeds``); clean
+and occluded (level 2); 120 frames at 30 fps, 320x240; tracker seed 0.
+
+    python benchmarks/online_gap.py --seeds 112-127
+    python benchmarks/online_gap.py --seeds 112-127 --part 0 --parts 2 --out A.json  # two processes
+    python benchmarks/online_gap.py --merge A.json B.json --out benchmarks/results/online_gap.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from seeds import parse_seeds
+from tune import check_seeds, real_motion
+
+import posetrack as pt
+from posetrack.app import machine_info
+
+#: (column, mode, left/right relabelling on) of each tracking of a clip.
+RUNS = (("offline", "offline", True), ("online", "online", True),
+        ("offline_no_sides", "offline", False), ("online_no_sides", "online", False))  # fmt: skip
+
+
+def mean_error_mm(keypoints3d: np.ndarray, truth: np.ndarray) -> float:
+    """Mean 3D error over keypoints and the frames with an estimate, mm."""
+    err = np.linalg.norm(keypoints3d - truth, axis=-1)
+    return float(np.nanmean(err) * 1000.0)
+
+
+def track(seq, mode: str, sides: bool) -> dict:
+    """D of the per-frame pass and of the published output, and swapped-limb frames."""
+    kw = {} if sides else {"sides": None}
+    tr = pt.Tracker(seq.intrinsics, mode=mode, seed=0, **kw)
+    passed = np.full(seq.joints3d.shape, np.nan)
+    update = tr.update
+
+    def recording_update(depth, keypoints2d, confidence):
+        est, st = update(depth, keypoints2d, confidence)
+        if est is not None and st != pt.NO_OBSERVATION:
+            passed[recording_update.frame] = np.asarray(est.keypoints3d)
+        recording_update.frame += 1
+        return est, st
+
+    recording_update.frame = 0
+    if mode == "online":
+        tr.update = recording_update  # the online pass: what each update returned
+    res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+    if mode == "offline":
+        passed = res.per_frame_keypoints3d
+    return {
+        "pass_mm": mean_error_mm(passed, seq.joints3d),
+        "output_mm": mean_error_mm(res.keypoints3d, seq.joints3d),
+        "swapped_limb_frames": pt.swapped_limb_frames(res.keypoints3d, seq.joints3d),
+    }
+
+
+def run_clip(seed: int, occlusion: int) -> dict:
+    seq = pt.synth.generate(
+        seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
+        width=320, height=240, with_rgb=False, variety="wide",
+    )  # fmt: skip
+    row = {"seed": seed, "motion": real_motion(seed), "occlusion": occlusion}
+    for name, mode, sides in RUNS:
+        row[name] = track(seq, mode, sides)
+    return row
+
+
+def summary(runs: list[dict]) -> dict:
+    """Means over the runs, per occlusion level and together."""
+    out = {}
+    groups = (
+        ("clean", [r for r in runs if r["occlusion"] == 0]),
+        ("occluded", [r for r in runs if r["occlusion"] > 0]),
+        ("all", runs),
+    )
+    for label, rows in groups:
+        if not rows:
+            continue
+        out[label] = {"runs": len(rows)}
+        for name, _, _ in RUNS:
+            out[label][name] = {
+                k: float(np.mean([r[name][k] for r in rows]))
+                for k in ("pass_mm", "output_mm", "swapped_limb_frames")
+            }
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", default="112-127", help="wide real motion tuning seeds")
+    ap.add_argument("--part", type=int, default=0)
+    ap.add_argument("--parts", type=int, default=1)
+    ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "online_gap.json"))
+    a = ap.parse_args()
+    if a.merge:
+        runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
+    else:
+        seeds = parse_seeds(a.seeds)
+        try:
+            check_seeds(seeds)
+        except ValueError as e:
+            ap.error(str(e))
+        todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
+        runs, t0 = [], time.perf_counter()
+        for i, (seed, occ) in enumerate(todo):
+            runs.append(run_clip(seed, occ))
+            print(f"[{time.perf_counter() - t0:5.0f}s {i + 1}/{len(todo)}] "
+                  f"{json.dumps(runs[-1])}", file=sys.stderr)  # fmt: skip
+    table = summary(runs)
+    print("\nOnline against offline, wide real motion tuning clips (D mm: per-frame pass -> "
+          "published; swapped-limb frames per run)")  # fmt: skip
+    print(f"{'clips':9s} {'runs':>4s}  " + "  ".join(f"{n:>24s}" for n, _, _ in RUNS))
+    for label, row in table.items():
+        cells = "  ".join(
+            f"{row[n]['pass_mm']:7.2f} -> {row[n]['output_mm']:6.2f} "
+            f"{row[n]['swapped_limb_frames']:5.1f}"
+            for n, _, _ in RUNS
+        )
+        print(f"{label:9s} {row['runs']:4d}  {cells}")
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps({
+        "benchmark": "online_gap", "table": table, "runs": runs, "machine": machine_info(),
+    }, indent=1))  # fmt: skip
+    print(f"wrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
