@@ -21,7 +21,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
-(``SmoothSettings(online_accel_std=X)``, m/s^2), ``anchorX``
+(``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
+(``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``),
@@ -76,11 +77,12 @@ def settings(variant: str) -> dict:
         return {}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
-    if variant.startswith("oacc"):
-        try:
-            return {"motion": pt.SmoothSettings(online_accel_std=float(variant[4:]))}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    for prefix, field in (("oacc", "online_accel_std"), ("orobust", "online_robust")):
+        if variant.startswith(prefix):
+            try:
+                return {"motion": pt.SmoothSettings(**{field: float(variant[len(prefix) :])})}
+            except ValueError as e:
+                raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     for prefix, (field, kind) in _ONLINE_SIDES.items():
         if variant.startswith(prefix):
             try:
@@ -114,8 +116,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'anchorX', 'amargX', 'oframesN', 'kept', 'settleN', "
-        "'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'kept', "
+        "'settleN', 'bandM', 'sides:G+G...'"
     )
 
 

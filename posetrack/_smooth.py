@@ -98,6 +98,11 @@ class SmoothSettings:
     traded D against acceleration error by a few per cent either way."""
     online_iterations: int = 3
     """Gauss-Newton steps fitting the pose to the smoothed keypoints (online)."""
+    online_robust: float = 0.0
+    """Online: after the smoothing, each keypoint-frame's data weight is divided by
+    ``1 + (r / online_robust)^2`` (r its distance from the smoothed track, metres) and the
+    window smoothed again, so a frame far off its neighbours (an outlier the tracker followed)
+    pulls less; 0 (the default): one plain smoothing."""
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
@@ -132,6 +137,11 @@ class SmoothSettings:
         if self.online_iterations < 1:
             raise ValueError(
                 f"SmoothSettings.online_iterations must be >= 1, got {self.online_iterations}"
+            )
+        if not (np.isfinite(self.online_robust) and self.online_robust >= 0):
+            raise ValueError(
+                f"SmoothSettings.online_robust must be >= 0 (metres; 0: off), got "
+                f"{self.online_robust}"
             )
         if self.window < 4 or self.window % 2:
             raise ValueError(f"SmoothSettings.window must be even and >= 4, got {self.window}")
@@ -647,6 +657,18 @@ def pose_from_keypoints(
     return jnp.where(jnp.all(jnp.isfinite(p)), p, start)
 
 
+def _online_smooth(settings: SmoothSettings, window: OnlineWindow, fps) -> Array:
+    """The window's keypoint tracks smoothed (:func:`smooth_keypoints`), with
+    ``settings.online_robust`` a second time under reweighted data."""
+    weight = settings.online_weight(fps)
+    smoothed = smooth_keypoints(window.keypoints, window.confidence, window.valid, weight)
+    if settings.online_robust > 0:
+        r = jnp.linalg.norm(window.keypoints - smoothed, axis=-1)
+        conf = window.confidence / (1.0 + (r / settings.online_robust) ** 2)
+        smoothed = smooth_keypoints(window.keypoints, conf, window.valid, weight)
+    return smoothed
+
+
 def online_update(
     settings: SmoothSettings,
     shape: body.BodyShape,
@@ -668,9 +690,7 @@ def online_update(
         ``t - lag`` with its model keypoints (meaningful where that frame is valid).
     """
     window = window.push(keypoints, confidence, params, valid)
-    smoothed = smooth_keypoints(
-        window.keypoints, window.confidence, window.valid, settings.online_weight(fps)
-    )
+    smoothed = _online_smooth(settings, window, fps)
     i = window.keypoints.shape[0] - 1 - lag
     pose = pose_from_keypoints(shape, window.params[i], smoothed[i], settings.online_iterations)
     return window, pose, body.keypoints(shape, pose)
@@ -685,9 +705,7 @@ def online_flush(
 ) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
     """At the end of a recording: the smoothed poses of every frame in the window (the newest
     ``lag`` frames were never published)."""
-    smoothed = smooth_keypoints(
-        window.keypoints, window.confidence, window.valid, settings.online_weight(fps)
-    )
+    smoothed = _online_smooth(settings, window, fps)
     poses = jax.vmap(
         lambda p, x: pose_from_keypoints(shape, p, x, settings.online_iterations)
     )(window.params, smoothed)

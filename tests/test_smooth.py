@@ -285,6 +285,27 @@ def test_keypoint_smoother_removes_noise_and_keeps_a_straight_line():
     np.testing.assert_allclose(a[3:], b[3:], atol=1e-5)
 
 
+def test_online_robust_smoothing_pulls_less_toward_an_outlying_frame():
+    T = 12
+    line = np.linspace(0.0, 0.3, T)[:, None, None] * np.ones((1, 18, 3)) + [0.0, 0.0, 2.5]
+    kps = line.copy()
+    kps[7, 4] += [0.4, 0.0, 0.0]  # the right wrist 40 cm off in one frame
+    window = _smooth.OnlineWindow(
+        keypoints=jnp.asarray(kps, jnp.float32), confidence=jnp.full((T, 18), 0.8),
+        params=jnp.zeros((T, 43)), valid=jnp.ones(T, bool),
+    )  # fmt: skip
+    plain = np.asarray(_smooth._online_smooth(pt.SmoothSettings(), window, 30.0))
+    robust = np.asarray(_smooth._online_smooth(pt.SmoothSettings(online_robust=0.05), window, 30.0))
+    off = lambda x: np.linalg.norm(x[:, 4] - line[:, 4], axis=-1)  # noqa: E731
+    # The neighbours of the outlying frame are pulled less toward it, and so is the frame.
+    assert off(robust)[[5, 6, 8, 9]].max() < 0.5 * off(plain)[[5, 6, 8, 9]].max()
+    assert off(robust)[7] < off(plain)[7]
+    # Keypoints without an outlier are smoothed alike (a straight line stays straight).
+    np.testing.assert_allclose(robust[:, 0], line[:, 0], atol=1e-4)
+    with pytest.raises(ValueError, match="online_robust"):
+        pt.SmoothSettings(online_robust=-0.1)
+
+
 def test_pose_from_keypoints_recovers_a_pose_from_its_keypoints(noisy_motion):
     shape, _, truth, kp_true, est, _ = noisy_motion
     fit = jax.jit(_smooth.pose_from_keypoints, static_argnums=3)
