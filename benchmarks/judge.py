@@ -22,13 +22,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
-from seeds import parse_seeds
-from tune import check_seeds, real_motion
+from tune import clip_arguments, clip_runs, real_motion
 
 import posetrack as pt
 from posetrack.app import machine_info
@@ -123,25 +120,9 @@ def run_clip(seed: int, occlusion: int) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="112-123", help="wide real motion tuning seeds")
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
-    ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "judge.json"))
+    clip_arguments(ap, "112-123", Path(__file__).parent / "results" / "judge.json")
     a = ap.parse_args()
-    if a.merge:
-        runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
-    else:
-        seeds = parse_seeds(a.seeds)
-        try:
-            check_seeds(seeds)
-        except ValueError as e:
-            ap.error(str(e))
-        todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
-        runs, t0 = [], time.perf_counter()
-        for seed, occ in todo:
-            runs.append(run_clip(seed, occ))
-            print(f"[{time.perf_counter() - t0:5.0f}s] {json.dumps(runs[-1])}", file=sys.stderr)
+    runs = clip_runs(ap, a, run_clip)
     print(f"\nOnline judgements against the truth, wide real motion tuning clips, {len(runs)} runs")
     print(f"{'':18s} {'judged':>7s} {'pose already swapped':>21s}")
     table = {}

@@ -27,13 +27,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
 from pathlib import Path
 
 import numpy as np
-from seeds import parse_seeds
-from tune import check_seeds, real_motion
+from tune import clip_arguments, clip_runs, real_motion
 
 import posetrack as pt
 from posetrack.app import machine_info
@@ -109,26 +106,9 @@ def summary(runs: list[dict]) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="112-127", help="wide real motion tuning seeds")
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
-    ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "online_gap.json"))
+    clip_arguments(ap, "112-127", Path(__file__).parent / "results" / "online_gap.json")
     a = ap.parse_args()
-    if a.merge:
-        runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
-    else:
-        seeds = parse_seeds(a.seeds)
-        try:
-            check_seeds(seeds)
-        except ValueError as e:
-            ap.error(str(e))
-        todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
-        runs, t0 = [], time.perf_counter()
-        for i, (seed, occ) in enumerate(todo):
-            runs.append(run_clip(seed, occ))
-            print(f"[{time.perf_counter() - t0:5.0f}s {i + 1}/{len(todo)}] "
-                  f"{json.dumps(runs[-1])}", file=sys.stderr)  # fmt: skip
+    runs = clip_runs(ap, a, run_clip)
     table = summary(runs)
     print("\nOnline against offline, wide real motion tuning clips (D mm: per-frame pass -> "
           "published; swapped-limb frames per run)")  # fmt: skip

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from seeds import REPORT_SEEDS, TUNING_SEEDS  # benchmarks/seeds.py
+from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds  # benchmarks/seeds.py
 
 import posetrack as pt
 
@@ -74,6 +74,37 @@ def real_motion(seed: int) -> str:
     """The real clip a tuning seed's wide real-motion run tracks (``REAL[seed % len(REAL)]``;
     decide.py --real-seeds, facing.py, losses.py --kind real)."""
     return REAL[seed % len(REAL)]
+
+
+def clip_arguments(ap: argparse.ArgumentParser, seeds: str, out: Path) -> None:
+    """The command line of a diagnosis over wide real-motion tuning clips (judge.py,
+    online_gap.py): ``--seeds``, ``--part``/``--parts`` (this process's share), ``--merge``
+    (JSON files of parts) and ``--out``."""
+    ap.add_argument("--seeds", default=seeds, help="wide real motion tuning seeds")
+    ap.add_argument("--part", type=int, default=0)
+    ap.add_argument("--parts", type=int, default=1)
+    ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
+    ap.add_argument("--out", default=str(out))
+
+
+def clip_runs(ap: argparse.ArgumentParser, a: argparse.Namespace, run_clip) -> list[dict]:
+    """The runs of such a diagnosis: the ``"runs"`` of the ``--merge`` files, or
+    ``run_clip(seed, occlusion)`` for this part's share of ``--seeds`` x occlusion 0 and 2
+    (tuning seeds only: anything else is a command-line error), each printed to stderr."""
+    if a.merge:
+        return [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
+    seeds = parse_seeds(a.seeds)
+    try:
+        check_seeds(seeds)
+    except ValueError as e:
+        ap.error(str(e))
+    todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
+    runs, t0 = [], time.perf_counter()
+    for i, (seed, occ) in enumerate(todo):
+        runs.append(run_clip(seed, occ))
+        print(f"[{time.perf_counter() - t0:5.0f}s {i + 1}/{len(todo)}] {json.dumps(runs[-1])}",
+              file=sys.stderr)  # fmt: skip
+    return runs
 
 
 def check_seeds(seeds) -> None:
