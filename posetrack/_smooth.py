@@ -102,7 +102,10 @@ class SmoothSettings:
     """Online: after the smoothing, each keypoint-frame's data weight is divided by
     ``1 + (r / online_robust)^2`` (r its distance from the smoothed track, metres) and the
     window smoothed again, so a frame far off its neighbours (an outlier the tracker followed)
-    pulls less; 0 (the default): one plain smoothing."""
+    pulls less; 0 (the default): one plain smoothing. Opt-in: at 0.05 m it lowered D by
+    0.7-0.9 mm on 96 wide real tuning runs but added 2 swapped-limb frames to 535 on 64 of
+    them, which its rule did not allow (benchmarks/README.md, "Where online loses to
+    offline")."""
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
