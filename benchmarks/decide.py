@@ -22,7 +22,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
-(``SmoothSettings(online_robust=X)``, metres), ``anchorX``
+(``SmoothSettings(online_robust=X)``, metres), ``opose`` / ``oposeN``
+(``SmoothSettings(online_model="pose")``, with N iterations per frame), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``),
@@ -39,6 +40,7 @@ import argparse
 import json
 import time
 
+import numpy as np
 from seeds import TUNING_SEEDS, parse_seeds
 from tune import PROCEDURAL, REAL, check_seeds, real_motion
 
@@ -75,6 +77,9 @@ def settings(variant: str) -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
     if variant == "default":
         return {}
+    if variant.startswith("opose") and (variant == "opose" or variant[5:].isdigit()):
+        it = int(variant[5:] or 1)
+        return {"motion": pt.SmoothSettings(online_model="pose", online_pose_iterations=it)}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     for prefix, field in (("oacc", "online_accel_std"), ("orobust", "online_robust")):
@@ -116,8 +121,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'kept', "
-        "'settleN', 'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'opose', 'oposeN', 'anchorX', 'amargX', "
+        "'oframesN', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
     )
 
 
@@ -147,14 +152,18 @@ def main() -> int:
             for name, kwargs in variants.items():
                 t0 = time.perf_counter()
                 tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, **kwargs)
-                est = tr.run(seq.depth, seq.keypoints2d, seq.confidence).keypoints3d
+                res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+                est = res.keypoints3d
                 acc = pt.accuracy(est, seq.joints3d)
                 rec[name] = {
                     "D": acc.mean_mm, "cov": acc.coverage,
                     "swaps": pt.swapped_limb_frames(est, seq.joints3d),
                     "accel": float(pt.acceleration_error(est, seq.joints3d)),
                     "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
+                    "step_ms": res.ms_per_frame,
                 }  # fmt: skip
+                if a.mode == "online":  # the online motion model's median time per frame
+                    rec[name]["motion_ms"] = float(np.median(tr.motion_times) * 1000)
             f.write(json.dumps(rec) + "\n")
             f.flush()
             print(json.dumps(rec), flush=True)
