@@ -8,7 +8,9 @@ Runs the 40 tuning clips of the decisions recorded in benchmarks/README.md (wide
 seeds 150-157 with ``tune.REAL``, wide procedural 144-149 and standard 136-141 with
 ``tune.PROCEDURAL`` in order; occlusion 0 and 2; 120 frames at 30 fps, 320x240), each with
 the tracker seeds given, and appends one JSON line per clip and seed: D (mm, body joints),
-coverage, swapped-limb frames, acceleration error and the detections dropped, per variant.
+coverage, swapped-limb frames, acceleration error and the detections dropped, per variant,
+with the step's median ms a frame and, online, the motion model's (timed in the run: two
+processes on two cores inflate both, the small motion-model programs far more).
 Tuning seeds only: never point it at ``REPORT_SEEDS``.
 
     python benchmarks/decide.py OUT.jsonl --variants kept,settle1 --mode offline
@@ -22,8 +24,7 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
 no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
-(``SmoothSettings(online_robust=X)``, metres), ``opose`` / ``oposeN``
-(``SmoothSettings(online_model="pose")``, with N iterations per frame), ``anchorX``
+(``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``),
@@ -77,9 +78,6 @@ def settings(variant: str) -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
     if variant == "default":
         return {}
-    if variant.startswith("opose") and (variant == "opose" or variant[5:].isdigit()):
-        it = int(variant[5:] or 1)
-        return {"motion": pt.SmoothSettings(online_model="pose", online_pose_iterations=it)}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     for prefix, field in (("oacc", "online_accel_std"), ("orobust", "online_robust")):
@@ -121,8 +119,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'opose', 'oposeN', 'anchorX', 'amargX', "
-        "'oframesN', 'kept', 'settleN', 'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'kept', "
+        "'settleN', 'bandM', 'sides:G+G...'"
     )
 
 

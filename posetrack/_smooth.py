@@ -106,20 +106,6 @@ class SmoothSettings:
     0.7-0.9 mm on 96 wide real tuning runs but added 2 swapped-limb frames to 535 on 64 of
     them, which its rule did not allow (benchmarks/README.md, "Where online loses to
     offline")."""
-    online_model: str = "keypoints"
-    """Online: what is smoothed after every frame. ``"keypoints"`` (the default): the
-    tracker's keypoint tracks over the last ``online_window`` frames, a linear problem, then
-    the lagged pose fitted to them. ``"pose"`` (opt-in): the offline smoother's problem
-    (:func:`smooth_window`: each frame's consensus landmarks under Eq. (1)'s sum of norms, the
-    tracker's keypoints at ``pose_weight``, the acceleration prior ``accel_std``) over the last
-    ``online_pose_frames`` frames, ``online_pose_iterations`` Levenberg-Marquardt iterations
-    per frame, each window started from the previous one's poses. See benchmarks/README.md,
-    "The online pose model"."""
-    online_pose_frames: int = 8
-    """Online ``"pose"`` model: frames fitted jointly at every frame (even; static); the lag
-    must be smaller."""
-    online_pose_iterations: int = 1
-    """Online ``"pose"`` model: Levenberg-Marquardt iterations per frame (static)."""
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
@@ -154,21 +140,6 @@ class SmoothSettings:
         if self.online_iterations < 1:
             raise ValueError(
                 f"SmoothSettings.online_iterations must be >= 1, got {self.online_iterations}"
-            )
-        if self.online_model not in ("keypoints", "pose"):
-            raise ValueError(
-                f"SmoothSettings.online_model must be 'keypoints' or 'pose', got "
-                f"{self.online_model!r}"
-            )
-        if not (4 <= self.online_pose_frames <= self.online_window) or self.online_pose_frames % 2:
-            raise ValueError(
-                f"SmoothSettings.online_pose_frames must be even and in [4, online_window = "
-                f"{self.online_window}], got {self.online_pose_frames}"
-            )
-        if self.online_pose_iterations < 1:
-            raise ValueError(
-                f"SmoothSettings.online_pose_iterations must be >= 1, got "
-                f"{self.online_pose_iterations}"
             )
         if not (np.isfinite(self.online_robust) and self.online_robust >= 0):
             raise ValueError(
@@ -277,31 +248,6 @@ def _block_tridiagonal_solve(D, U, b):
     return x
 
 
-def _block_tridiagonal_solve_unrolled(D, U, b):
-    """:func:`_block_tridiagonal_solve` for a few blocks (the online pose model's window):
-    the elimination unrolled and each block solved by Cholesky, 2.5x faster on a CPU than the
-    scanned LU for 6 blocks of 86 (a scan step costs more than its small solves). Same
-    arguments; the system must be symmetric positive definite."""
-    K = D.shape[0]
-    factors, bp = [], []
-    for k in range(K):
-        Dk, bk = D[k], b[k]
-        if k:
-            X = jax.scipy.linalg.cho_solve(factors[-1], U[k - 1])
-            Dk, bk = Dk - U[k - 1].T @ X, bk - X.T @ bp[-1]
-        factors.append(jax.scipy.linalg.cho_factor(Dk))
-        bp.append(bk)
-    x = [None] * K
-    for k in reversed(range(K)):
-        rhs = bp[k] if k == K - 1 else bp[k] - U[k] @ x[k + 1]
-        x[k] = jax.scipy.linalg.cho_solve(factors[k], rhs)
-    return jnp.stack(x)
-
-
-#: Largest window (frames) :func:`smooth_window` solves with the unrolled elimination.
-_UNROLL_FRAMES = 16
-
-
 def smooth_window(
     settings: SmoothSettings,
     shape: body.BodyShape,
@@ -315,8 +261,6 @@ def smooth_window(
     pose_confidence: Float[Array, "frame kpt"],
     iterations: int | None = None,
     targets: Float[Array, "frame kpt 3"] | None = None,
-    init: Float[Array, "frame 43"] | None = None,
-    fixed: Bool[Array, " frame"] | None = None,
 ) -> Float[Array, "frame 43"]:
     """Fit the poses of a window of frames jointly (see the module docstring). Jittable.
 
@@ -338,14 +282,6 @@ def smooth_window(
             ``params`` with ``shape``). Given apart when ``shape`` is not the shape the
             per-frame poses were fitted with (``Tracker(refine=...)``): the same pose angles
             with other bone lengths would put the limbs' ends elsewhere.
-        init: (frame, 43) where the fit starts on the valid frames (default: ``params``; the
-            regularisers' anchor stays ``params``). The online pose model starts each window
-            from the previous one's result.
-        fixed: (frame,) frames held at their start: they enter the acceleration terms of
-            their neighbours but are not fitted (the online pose model's published past).
-            Windows of at most 16 frames are solved by an unrolled elimination
-            (:func:`_block_tridiagonal_solve_unrolled`; windows of 96, the offline default,
-            by the scanned one).
 
     Returns:
         (frame, 43) smoothed poses, unit quaternions with w >= 0.
@@ -414,13 +350,6 @@ def smooth_window(
         )
         U1 = lam * w1[:, None, None] * jnp.einsum("tki,tkj->tij", B, B_next)
         U2 = lam * w2[:, None, None] * jnp.einsum("tki,tkj->tij", B, B_next2)
-        if fixed is not None:  # a held frame: no step, no coupling to the fitted ones
-            free = (~fixed).astype(P.dtype)
-            g = g * free[:, None]
-            D = jnp.where(fixed[:, None, None], eye[None], D)
-            free1 = free * jnp.concatenate([free[1:], jnp.zeros(1, P.dtype)])
-            free2 = free * jnp.concatenate([free[2:], jnp.zeros(2, P.dtype)])
-            U1, U2 = U1 * free1[:, None, None], U2 * free2[:, None, None]
         # Pair frames (2k, 2k+1): bandwidth two in frames is one in pairs.
         K = W // 2
         SD = jnp.concatenate(
@@ -439,10 +368,7 @@ def smooth_window(
             axis=1,
         )
         b = -g.reshape(K, 86)
-        solve = (
-            _block_tridiagonal_solve_unrolled if W <= _UNROLL_FRAMES else _block_tridiagonal_solve
-        )
-        step = solve(SD, SU, b).reshape(W, 43)
+        step = _block_tridiagonal_solve(SD, SU, b).reshape(W, 43)
         P_new = P + step
         c_new = cost(P_new)
         better = jnp.isfinite(c_new) & (c_new < c)
@@ -452,7 +378,7 @@ def smooth_window(
             jnp.where(better, c_new, c),
         )
 
-    P0 = start if init is None else jnp.where(valid[:, None], init, start)
+    P0 = start
     carry = (P0, jnp.asarray(1e-3, P0.dtype), cost(P0))
     P, _, _ = jax.lax.fori_loop(0, iterations or settings.iterations, iterate, carry)
     P = body.normalize_params(P)
@@ -646,71 +572,30 @@ class OnlineWindow(eqx.Module):
     """The per-frame poses (the start of the pose fit; quaternions wxyz)."""
     valid: Bool[Array, " frame"]
     """Frames that belong to the current track segment."""
-    landmarks: Landmarks | None = None
-    """The ``"pose"`` model: each frame's landmarks (``None`` for the ``"keypoints"`` one)."""
-    use3d: Bool[Array, "frame kpt"] | None = None
-    """The ``"pose"`` model: the 3D landmarks each frame's data term uses (the consensus with
-    the tracker's pose, :func:`consensus_masks`)."""
-    use2d: Bool[Array, "frame kpt"] | None = None
-    """The ``"pose"`` model: the 2D-only landmarks each frame's data term uses."""
-    smoothed: Float[Array, "frame 43"] | None = None
-    """The ``"pose"`` model: the poses of the last fit (the next window starts there)."""
 
     @staticmethod
-    def empty(size: int, pose: bool = False) -> OnlineWindow:
-        """An empty window; ``pose``: with the ``"pose"`` model's fields."""
+    def empty(size: int) -> OnlineWindow:
         # Made on the host and copied: jnp.zeros / jnp.tile here compiled (or loaded) four
         # small programs for every new tracker, ~0.15 s of a warm start.
-        params = np.tile(body.facing_camera_params_np(2.5), (size, 1))
-        extra = {}
-        if pose:
-            no = np.zeros((size, 18), bool)
-            extra = dict(
-                landmarks=jax.device_put(empty_landmarks(size)), use3d=jax.device_put(no),
-                use2d=jax.device_put(no), smoothed=jax.device_put(params),
-            )  # fmt: skip
         return OnlineWindow(
             keypoints=jax.device_put(np.zeros((size, 18, 3), np.float32)),
             confidence=jax.device_put(np.zeros((size, 18), np.float32)),
-            params=jax.device_put(params),
+            params=jax.device_put(np.tile(body.facing_camera_params_np(2.5), (size, 1))),
             valid=jax.device_put(np.zeros(size, bool)),
-            **extra,
         )
 
-    def push(
-        self, keypoints, confidence, params, valid, landmarks=None, use3d=None, use2d=None
-    ) -> OnlineWindow:
-        """The window with a new newest frame (the oldest dropped); the ``"pose"`` model's
-        fields where the window has them (its fit starts the new frame at ``params``)."""
+    def push(self, keypoints, confidence, params, valid) -> OnlineWindow:
+        """The window with a new newest frame (the oldest dropped)."""
 
         def roll(buf, x):
             return jnp.concatenate([buf[1:], jnp.asarray(x, buf.dtype)[None]])
 
-        extra = {}
-        if self.landmarks is not None:
-            extra = dict(
-                landmarks=jax.tree.map(roll, self.landmarks, landmarks),
-                use3d=roll(self.use3d, use3d), use2d=roll(self.use2d, use2d),
-                smoothed=roll(self.smoothed, params),
-            )  # fmt: skip
         return OnlineWindow(
             keypoints=roll(self.keypoints, keypoints),
             confidence=roll(self.confidence, confidence),
             params=roll(self.params, params),
             valid=roll(self.valid, valid),
-            **extra,
         )
-
-
-def empty_landmarks(*batch: int) -> Landmarks:
-    """Landmarks with nothing detected (NumPy; a leading ``batch`` shape)."""
-    return Landmarks(
-        keypoints2d=np.zeros((*batch, 18, 2), np.float32),
-        confidence=np.zeros((*batch, 18), np.float32),
-        points3d=np.zeros((*batch, 18, 3), np.float32),
-        detected=np.zeros((*batch, 18), bool),
-        has_depth=np.zeros((*batch, 18), bool),
-    )
 
 
 #: Smallest data weight of a frame of the track (a frame with nothing observed is carried by
@@ -790,36 +675,23 @@ def _online_smooth(settings: SmoothSettings, window: OnlineWindow, fps) -> Array
 def online_update(
     settings: SmoothSettings,
     shape: body.BodyShape,
-    intrinsics: Intrinsics,
     fps: Float[Array, ""],
     window: OnlineWindow,
     keypoints: Float[Array, "kpt 3"],
     confidence: Float[Array, " kpt"],
     params: Float[Array, 43],
     valid: Bool[Array, ""],
-    landmarks: Landmarks,
     lag: int,
 ) -> tuple[OnlineWindow, Float[Array, 43], Float[Array, "kpt 3"]]:
-    """The online motion model after one frame (one jitted call): push the frame, smooth, and
-    return the smoothed pose of the frame ``lag`` frames back.
-
-    ``settings.online_model`` ``"keypoints"``: the window's keypoint trajectories smoothed
-    (:func:`smooth_keypoints`, weight :meth:`SmoothSettings.online_weight`) and the lagged
-    pose fitted to its smoothed keypoints (:func:`pose_from_keypoints`); ``landmarks`` and
-    ``intrinsics`` are not read. ``"pose"``: :func:`smooth_window` over the newest
-    ``online_pose_frames`` frames (each frame's consensus landmarks, the tracker's keypoints,
-    the acceleration prior), ``online_pose_iterations`` iterations started from the previous
-    fit (the window must have been made with ``OnlineWindow.empty(size, pose=True)``).
+    """The online motion model after one frame (one jitted call): push the frame, smooth the
+    window's keypoint trajectories (:func:`smooth_keypoints`, weight
+    :meth:`SmoothSettings.online_weight`), and fit the pose of the frame ``lag`` frames back to
+    its smoothed keypoints (:func:`pose_from_keypoints`).
 
     Returns:
         ``(window, params, keypoints)``: the new window and the smoothed pose of frame
         ``t - lag`` with its model keypoints (meaningful where that frame is valid).
     """
-    if settings.online_model == "pose":
-        return _online_pose_update(
-            settings, shape, intrinsics, fps, window, keypoints, confidence, params, valid,
-            landmarks, lag,
-        )  # fmt: skip
     window = window.push(keypoints, confidence, params, valid)
     smoothed = _online_smooth(settings, window, fps)
     i = window.keypoints.shape[0] - 1 - lag
@@ -827,33 +699,7 @@ def online_update(
     return window, pose, body.keypoints(shape, pose)
 
 
-def _online_pose_update(
-    settings, shape, intrinsics, fps, window, keypoints, confidence, params, valid, landmarks,
-    lag,
-):  # fmt: skip
-    """:func:`online_update` with the ``"pose"`` model."""
-    if window.smoothed is None:
-        raise ValueError(
-            "online_update: the 'pose' model needs OnlineWindow.empty(size, pose=True)"
-        )
-    use3d, use2d = consensus_set(landmarks, keypoints, intrinsics, settings.consensus_distance)
-    window = window.push(
-        keypoints, confidence, params, valid, landmarks, use3d, use2d & ~landmarks.has_depth
-    )
-    F = settings.online_pose_frames
-    last = lambda x: x[-F:]  # noqa: E731
-    P = smooth_window(
-        settings, shape, intrinsics, last(window.params), jax.tree.map(last, window.landmarks),
-        last(window.use3d), last(window.use2d), last(window.valid), fps,
-        last(window.confidence), iterations=settings.online_pose_iterations,
-        targets=last(window.keypoints), init=last(window.smoothed),
-    )  # fmt: skip
-    window = eqx.tree_at(lambda w: w.smoothed, window, window.smoothed.at[-F:].set(P))
-    pose = window.smoothed[-1 - lag]
-    return window, pose, body.keypoints(shape, pose)
-
-
-online_update_program = program("online_update", static_argnums=(0, 10))(online_update)
+online_update_program = program("online_update", static_argnums=(0, 8))(online_update)
 
 
 @program("online_flush", static_argnums=(0,))
@@ -862,8 +708,6 @@ def online_flush(
 ) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
     """At the end of a recording: the smoothed poses of every frame in the window (the newest
     ``lag`` frames were never published)."""
-    if settings.online_model == "pose":  # the last fit's poses
-        return window.smoothed, jax.vmap(lambda p: body.keypoints(shape, p))(window.smoothed)
     smoothed = _online_smooth(settings, window, fps)
     poses = jax.vmap(
         lambda p, x: pose_from_keypoints(shape, p, x, settings.online_iterations)

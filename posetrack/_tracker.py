@@ -55,7 +55,6 @@ from ._sides import (
 from ._smooth import (
     OnlineWindow,
     SmoothSettings,
-    empty_landmarks,
     online_flush,
     online_update_program,
     smooth_sequence,
@@ -78,8 +77,6 @@ def _host_f32(x):
 
 #: The pose pushed into the online window for a frame outside any track (never published).
 _NO_POSE = body.facing_camera_params_np(2.5)
-#: The landmarks of a frame the online motion model gets without observations.
-_NO_LANDMARKS = empty_landmarks()
 
 #: Fewer tracked frames than this and ``refine`` is skipped (the shape stays as estimated).
 _MIN_REFINE_FRAMES = 3
@@ -557,11 +554,6 @@ class Tracker:
                 f"Tracker: lag {lag} must be smaller than motion.online_window "
                 f"({motion.online_window} frames)"
             )
-        if mode == "online" and motion.online_model == "pose" and lag >= motion.online_pose_frames:
-            raise ValueError(
-                f"Tracker: lag {lag} must be smaller than motion.online_pose_frames "
-                f"({motion.online_pose_frames} frames) with motion.online_model 'pose'"
-            )
         if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
             raise ValueError(f"Tracker: chunk must be an int >= 1 (frames per call), got {chunk!r}")
         self.chunk = int(chunk)
@@ -678,9 +670,7 @@ class Tracker:
 
     def _reset_motion(self) -> None:
         """Empty the online motion model's window (a new recording starts)."""
-        self._window = OnlineWindow.empty(
-            self.motion.online_window, pose=self.motion.online_model == "pose"
-        )
+        self._window = OnlineWindow.empty(self.motion.online_window)
         self._window_frames = np.full(self.motion.online_window, -1, np.int64)
         self._window_valid = np.zeros(self.motion.online_window, bool)
         self._frames_seen = 0
@@ -703,18 +693,17 @@ class Tracker:
         """The online motion model after a frame: push it into the window, smooth, publish
         the lagged output (:attr:`lagged`). Returns the smoothed ``(params, keypoints)`` of
         frame ``t - lag`` (``None`` if that frame has no pose)."""
-        lms = _NO_LANDMARKS
         if self._state is None:  # no track: the frame takes part in no smoothing
             kps, params, valid = np.zeros((18, 3)), _NO_POSE, False
         elif est is None:  # held: the pose continues, nothing observed
             kps = np.asarray(body.keypoints(self.shape, self._state.best))
             params, valid, conf = self._state.best, True, np.zeros(18)
         else:
-            kps, params, valid, lms = est.keypoints3d, est.params, True, est.landmarks
+            kps, params, valid = est.keypoints3d, est.params, True
         t0 = time.perf_counter()
         self._window, pose, pose_kps = online_update_program(
-            self.motion, self.shape, self.intrinsics, _host_f32(self.fps), self._window,
-            _host_f32(kps), _host_f32(conf), _host_f32(params), np.asarray(valid, bool), lms,
+            self.motion, self.shape, _host_f32(self.fps), self._window,
+            _host_f32(kps), _host_f32(conf), _host_f32(params), np.asarray(valid, bool),
             self.lag,
         )  # fmt: skip
         self._window_frames = np.roll(self._window_frames, -1)
@@ -824,9 +813,9 @@ class Tracker:
                 # Every online frame runs it, the first one included: it builds beside the
                 # step.
                 jobs.append((online_update_program, (
-                    self.motion, shape, intr, f32(()), jax.eval_shape(lambda: self._window),
+                    self.motion, shape, f32(()), jax.eval_shape(lambda: self._window),
                     f32((18, 3)), f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool),
-                    jax.eval_shape(lambda: _NO_LANDMARKS), self.lag,
+                    self.lag,
                 )))  # fmt: skip
             return jobs
 
