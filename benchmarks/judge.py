@@ -20,15 +20,10 @@ occluded (level 2); 120 frames at 30 fps, 320x240.
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
-
 import numpy as np
-from tune import clip_arguments, clip_runs, real_motion
+from tune import diagnosis_runs, real_motion, write_diagnosis
 
 import posetrack as pt
-from posetrack.app import machine_info
 
 #: Wrist/elbow, knee/ankle and shoulder/hip pairs, as ``SideSettings.for_mode("online")``
 #: groups them (arms, legs, torso).
@@ -119,10 +114,7 @@ def run_clip(seed: int, occlusion: int) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    clip_arguments(ap, "112-123", Path(__file__).parent / "results" / "judge.json")
-    a = ap.parse_args()
-    runs = clip_runs(ap, a, run_clip)
+    a, runs = diagnosis_runs(__doc__, "112-123", "judge", run_clip)
     print(f"\nOnline judgements against the truth, wide real motion tuning clips, {len(runs)} runs")
     print(f"{'':18s} {'judged':>7s} {'pose already swapped':>21s}")
     table = {}
@@ -138,12 +130,7 @@ def main() -> int:
     }  # fmt: skip
     for k, v in frames.items():
         print(f"{k.replace('_', ' ')}: {v} group-frames")
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps({
-        "benchmark": "judge", "table": table, "frames": frames, "runs": runs,
-        "machine": machine_info(),
-    }, indent=1))  # fmt: skip
-    print(f"wrote {a.out}")
+    write_diagnosis(a.out, "judge", table, runs, frames=frames)
     return 0
 
 

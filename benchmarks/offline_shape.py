@@ -19,15 +19,10 @@ occluded (level 2); 120 frames at 30 fps, 320x240; tracker seed 0.
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
-
 import numpy as np
-from tune import clip_arguments, clip_runs, real_motion
+from tune import diagnosis_runs, real_motion, write_diagnosis
 
 import posetrack as pt
-from posetrack.app import machine_info
 
 #: D here is over all 18 keypoints (``pt.accuracy``'s default is the 13 body joints).
 ALL_KEYPOINTS = tuple(range(len(pt.KEYPOINT_NAMES)))
@@ -56,10 +51,7 @@ def run_clip(seed: int, occlusion: int) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    clip_arguments(ap, "112-127", Path(__file__).parent / "results" / "offline_shape.json")
-    a = ap.parse_args()
-    runs = clip_runs(ap, a, run_clip)
+    a, runs = diagnosis_runs(__doc__, "112-127", "offline_shape", run_clip)
     table = {}
     for label, occ in (("clean", 0), ("occluded", 2)):
         rows = [r for r in runs if r["occlusion"] == occ]
@@ -71,11 +63,7 @@ def main() -> int:
     print(f"{'clips':9s} {'runs':>4s} " + " ".join(f"{c:>17s}" for c in COLUMNS))
     for label, row in table.items():
         print(f"{label:9s} {row['runs']:4d} " + " ".join(f"{row[c]:17.2f}" for c in COLUMNS))
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps({
-        "benchmark": "offline_shape", "table": table, "runs": runs, "machine": machine_info(),
-    }, indent=1))  # fmt: skip
-    print(f"wrote {a.out}")
+    write_diagnosis(a.out, "offline_shape", table, runs)
     return 0
 
 

@@ -25,15 +25,10 @@ and occluded (level 2); 120 frames at 30 fps, 320x240; tracker seed 0.
 
 from __future__ import annotations
 
-import argparse
-import json
-from pathlib import Path
-
 import numpy as np
-from tune import clip_arguments, clip_runs, real_motion
+from tune import diagnosis_runs, real_motion, write_diagnosis
 
 import posetrack as pt
-from posetrack.app import machine_info
 
 #: (column, mode, left/right relabelling on) of each tracking of a clip.
 RUNS = (("offline", "offline", True), ("online", "online", True),
@@ -108,10 +103,7 @@ def summary(runs: list[dict]) -> dict:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    clip_arguments(ap, "112-127", Path(__file__).parent / "results" / "online_gap.json")
-    a = ap.parse_args()
-    runs = clip_runs(ap, a, run_clip)
+    a, runs = diagnosis_runs(__doc__, "112-127", "online_gap", run_clip)
     table = summary(runs)
     print("\nOnline against offline, wide real motion tuning clips (D mm: per-frame pass -> "
           "published; swapped-limb frames per run)")  # fmt: skip
@@ -123,11 +115,7 @@ def main() -> int:
             for n, _, _ in RUNS
         )
         print(f"{label:9s} {row['runs']:4d}  {cells}")
-    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(a.out).write_text(json.dumps({
-        "benchmark": "online_gap", "table": table, "runs": runs, "machine": machine_info(),
-    }, indent=1))  # fmt: skip
-    print(f"wrote {a.out}")
+    write_diagnosis(a.out, "online_gap", table, runs)
     return 0
 
 

@@ -107,6 +107,28 @@ def clip_runs(ap: argparse.ArgumentParser, a: argparse.Namespace, run_clip) -> l
     return runs
 
 
+def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip):
+    """The command line and runs of a diagnosis over wide real-motion tuning clips (judge.py,
+    online_gap.py, offline_shape.py): :func:`clip_arguments` (default ``--out``
+    ``results/<benchmark>.json``), then :func:`clip_runs`. Returns ``(args, runs)``."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
+    clip_arguments(ap, seeds, Path(__file__).parent / "results" / f"{benchmark}.json")
+    a = ap.parse_args()
+    return a, clip_runs(ap, a, run_clip)
+
+
+def write_diagnosis(out: str, benchmark: str, table: dict, runs: list[dict], **extra) -> None:
+    """A diagnosis' JSON (judge.py, online_gap.py, offline_shape.py): ``benchmark``, ``table``,
+    the ``extra`` entries, ``runs`` and the machine, written to ``out``."""
+    from posetrack.app import machine_info
+
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps({
+        "benchmark": benchmark, "table": table, **extra, "runs": runs, "machine": machine_info(),
+    }, indent=1))  # fmt: skip
+    print(f"wrote {out}")
+
+
 def check_seeds(seeds) -> None:
     """Refuse any seed outside ``TUNING_SEEDS`` (reported and test seeds are never tuned on)."""
     bad = [s for s in seeds if s not in TUNING_SEEDS]
