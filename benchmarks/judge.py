@@ -21,7 +21,7 @@ occluded (level 2); 120 frames at 30 fps, 320x240.
 from __future__ import annotations
 
 import numpy as np
-from tune import diagnosis_runs, real_motion, write_diagnosis
+from tune import diagnosis_runs, write_diagnosis
 
 import posetrack as pt
 
@@ -62,11 +62,7 @@ def pose_exchanged(est: np.ndarray, truth: np.ndarray) -> np.ndarray:
     )
 
 
-def run_clip(seed: int, occlusion: int) -> dict:
-    seq = pt.synth.generate(
-        seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
-        width=320, height=240, with_rgb=False, variety="wide",
-    )  # fmt: skip
+def run_clip(seq) -> dict:
     tr = pt.Tracker(seq.intrinsics, mode="online", seed=0)
     res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
     # (start, stop, groups, kept, Delta summed as detected, Delta summed exchanged)
@@ -101,7 +97,6 @@ def run_clip(seed: int, occlusion: int) -> dict:
         if not kept:
             refused[max(start, 0) : stop] |= groups[None, :]
     return {
-        "seed": seed, "motion": real_motion(seed), "occlusion": occlusion,
         "D_mm": pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm,
         "swapped_limb_frames": pt.swapped_limb_frames(res.keypoints3d, seq.joints3d),
         "judgements": counts, "pose_swapped_before": pose_wrong_before,

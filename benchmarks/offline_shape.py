@@ -20,27 +20,19 @@ occluded (level 2); 120 frames at 30 fps, 320x240; tracker seed 0.
 from __future__ import annotations
 
 import numpy as np
-from tune import diagnosis_runs, real_motion, write_diagnosis
+from tune import diagnosis_runs, mean_error_all_mm, write_diagnosis
 
 import posetrack as pt
 
-#: D here is over all 18 keypoints (``pt.accuracy``'s default is the 13 body joints).
-ALL_KEYPOINTS = tuple(range(len(pt.KEYPOINT_NAMES)))
 COLUMNS = ("online", "offline_pass", "offline", "online_shape_pass", "online_shape")
 
 
-def run_clip(seed: int, occlusion: int) -> dict:
-    seq = pt.synth.generate(
-        seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
-        width=320, height=240, with_rgb=False, variety="wide",
-    )  # fmt: skip
-
+def run_clip(seq) -> dict:
     def mm(keypoints3d):
-        return pt.accuracy(keypoints3d, seq.joints3d, joints=ALL_KEYPOINTS).mean_mm
+        return mean_error_all_mm(keypoints3d, seq.joints3d)
 
     online = pt.Tracker(seq.intrinsics, mode="online", seed=0)
-    row = {"seed": seed, "motion": real_motion(seed), "occlusion": occlusion}
-    row["online"] = mm(online.run(seq.depth, seq.keypoints2d, seq.confidence).keypoints3d)
+    row = {"online": mm(online.run(seq.depth, seq.keypoints2d, seq.confidence).keypoints3d)}
     for name, kw in (("offline", {}), ("online_shape", {"shape": online.shape})):
         res = pt.Tracker(seq.intrinsics, mode="offline", seed=0, **kw).run(
             seq.depth, seq.keypoints2d, seq.confidence

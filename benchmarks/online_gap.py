@@ -26,22 +26,13 @@ and occluded (level 2); 120 frames at 30 fps, 320x240; tracker seed 0.
 from __future__ import annotations
 
 import numpy as np
-from tune import diagnosis_runs, real_motion, write_diagnosis
+from tune import diagnosis_runs, mean_error_all_mm, write_diagnosis
 
 import posetrack as pt
 
 #: (column, mode, left/right relabelling on) of each tracking of a clip.
 RUNS = (("offline", "offline", True), ("online", "online", True),
         ("offline_no_sides", "offline", False), ("online_no_sides", "online", False))  # fmt: skip
-
-
-#: D here is over all 18 keypoints (``pt.accuracy``'s default is the 13 body joints).
-ALL_KEYPOINTS = tuple(range(len(pt.KEYPOINT_NAMES)))
-
-
-def mean_error_mm(keypoints3d: np.ndarray, truth: np.ndarray) -> float:
-    """D (``pt.accuracy``) over all 18 keypoints and the frames with an estimate, mm."""
-    return pt.accuracy(keypoints3d, truth, joints=ALL_KEYPOINTS).mean_mm
 
 
 def track(seq, mode: str, sides: bool) -> dict:
@@ -65,21 +56,14 @@ def track(seq, mode: str, sides: bool) -> dict:
     if mode == "offline":
         passed = res.per_frame_keypoints3d
     return {
-        "pass_mm": mean_error_mm(passed, seq.joints3d),
-        "output_mm": mean_error_mm(res.keypoints3d, seq.joints3d),
+        "pass_mm": mean_error_all_mm(passed, seq.joints3d),
+        "output_mm": mean_error_all_mm(res.keypoints3d, seq.joints3d),
         "swapped_limb_frames": pt.swapped_limb_frames(res.keypoints3d, seq.joints3d),
     }
 
 
-def run_clip(seed: int, occlusion: int) -> dict:
-    seq = pt.synth.generate(
-        seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occlusion,
-        width=320, height=240, with_rgb=False, variety="wide",
-    )  # fmt: skip
-    row = {"seed": seed, "motion": real_motion(seed), "occlusion": occlusion}
-    for name, mode, sides in RUNS:
-        row[name] = track(seq, mode, sides)
-    return row
+def run_clip(seq) -> dict:
+    return {name: track(seq, mode, sides) for name, mode, sides in RUNS}
 
 
 def summary(runs: list[dict]) -> dict:

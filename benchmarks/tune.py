@@ -40,6 +40,7 @@ import numpy as np
 from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds  # benchmarks/seeds.py
 
 import posetrack as pt
+from posetrack.app import machine_info
 
 PROCEDURAL = ("walk", "box", "wave", "reach", "squat", "turn")
 #: Real clips that accuracy.py's REAL list does not contain (tests check it): other actions
@@ -76,52 +77,55 @@ def real_motion(seed: int) -> str:
     return REAL[seed % len(REAL)]
 
 
-def clip_arguments(ap: argparse.ArgumentParser, seeds: str, out: Path) -> None:
-    """The command line of a diagnosis over wide real-motion tuning clips (judge.py,
-    online_gap.py): ``--seeds``, ``--part``/``--parts`` (this process's share), ``--merge``
-    (JSON files of parts) and ``--out``."""
+#: D in the diagnoses is over all 18 keypoints (``pt.accuracy``'s default is the 13 body joints).
+ALL_KEYPOINTS = tuple(range(len(pt.KEYPOINT_NAMES)))
+
+
+def mean_error_all_mm(keypoints3d: np.ndarray, truth: np.ndarray) -> float:
+    """D (``pt.accuracy``) over all 18 keypoints and the frames with an estimate, mm."""
+    return pt.accuracy(keypoints3d, truth, joints=ALL_KEYPOINTS).mean_mm
+
+
+def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip) -> tuple:
+    """The command line and runs of a diagnosis over wide real-motion tuning clips (judge.py,
+    online_gap.py, offline_shape.py): ``--seeds`` (tuning seeds only: anything else is a
+    command-line error), ``--part``/``--parts`` (this process's share), ``--merge`` (JSON files
+    of parts: their ``"runs"`` instead of running) and ``--out`` (default
+    ``results/<benchmark>.json``). Each seed's clip (:func:`real_motion`, the wide generator,
+    120 frames at 30 fps, 320x240) at occlusion 0 and 2 is given to ``run_clip(seq)``, whose
+    row is prefixed with the seed, motion and occlusion and printed to stderr.
+
+    Returns ``(args, runs)``."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--seeds", default=seeds, help="wide real motion tuning seeds")
     ap.add_argument("--part", type=int, default=0)
     ap.add_argument("--parts", type=int, default=1)
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
-    ap.add_argument("--out", default=str(out))
-
-
-def clip_runs(ap: argparse.ArgumentParser, a: argparse.Namespace, run_clip) -> list[dict]:
-    """The runs of such a diagnosis: the ``"runs"`` of the ``--merge`` files, or
-    ``run_clip(seed, occlusion)`` for this part's share of ``--seeds`` x occlusion 0 and 2
-    (tuning seeds only: anything else is a command-line error), each printed to stderr."""
+    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / f"{benchmark}.json"))
+    a = ap.parse_args()
     if a.merge:
-        return [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
-    seeds = parse_seeds(a.seeds)
+        return a, [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
+    chosen = parse_seeds(a.seeds)
     try:
-        check_seeds(seeds)
+        check_seeds(chosen)
     except ValueError as e:
         ap.error(str(e))
-    todo = [(s, occ) for s in seeds for occ in (0, 2)][a.part :: a.parts]
+    todo = [(s, occ) for s in chosen for occ in (0, 2)][a.part :: a.parts]
     runs, t0 = [], time.perf_counter()
     for i, (seed, occ) in enumerate(todo):
-        runs.append(run_clip(seed, occ))
+        seq = pt.synth.generate(
+            seed, motion=real_motion(seed), n_frames=120, fps=30.0, occlusion_level=occ,
+            width=320, height=240, with_rgb=False, variety="wide",
+        )  # fmt: skip
+        runs.append({"seed": seed, "motion": real_motion(seed), "occlusion": occ, **run_clip(seq)})
         print(f"[{time.perf_counter() - t0:5.0f}s {i + 1}/{len(todo)}] {json.dumps(runs[-1])}",
               file=sys.stderr)  # fmt: skip
-    return runs
-
-
-def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip):
-    """The command line and runs of a diagnosis over wide real-motion tuning clips (judge.py,
-    online_gap.py, offline_shape.py): :func:`clip_arguments` (default ``--out``
-    ``results/<benchmark>.json``), then :func:`clip_runs`. Returns ``(args, runs)``."""
-    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
-    clip_arguments(ap, seeds, Path(__file__).parent / "results" / f"{benchmark}.json")
-    a = ap.parse_args()
-    return a, clip_runs(ap, a, run_clip)
+    return a, runs
 
 
 def write_diagnosis(out: str, benchmark: str, table: dict, runs: list[dict], **extra) -> None:
     """A diagnosis' JSON (judge.py, online_gap.py, offline_shape.py): ``benchmark``, ``table``,
     the ``extra`` entries, ``runs`` and the machine, written to ``out``."""
-    from posetrack.app import machine_info
-
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     Path(out).write_text(json.dumps({
         "benchmark": benchmark, "table": table, **extra, "runs": runs, "machine": machine_info(),
