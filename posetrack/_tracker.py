@@ -1512,8 +1512,13 @@ class Tracker:
         pending = None  # (prepared frames, the call's outputs, seconds at dispatch)
         self._chunk_read = 0.0  # when the last chunk's results were read
         # A tracker's first call steps one frame (padding after it): the first pose then
-        # comes as soon as the program is ready, not a whole chunk's steps later.
+        # comes as soon as the program is ready, not a whole chunk's steps later. Its result
+        # is read before the next chunk is prepared: on a cold start the builder thread is
+        # tracing the later programs then, and the host's work for 16 frames, slowed by it
+        # for the interpreter, delayed the first pose by ~1 s. (Not inside track_many: reading
+        # there would wait for the batch.)
         limit = 1 if self._step_calls == 0 else self.chunk
+        first = self._step_calls == 0 and self._batched is None
         while True:
             frames: list[_Prepared] = []
             if t < stop:
@@ -1536,6 +1541,13 @@ class Tracker:
                 self._lost_run = int(lost_run)
                 return
             pending = None if call is None else (frames, *call)
+            if first and pending is not None:
+                first, pending = False, None
+                resume = self._finish_chunk(
+                    out, kept, n_keep, len(depths), confidence, progress, frames, *call
+                )  # fmt: skip
+                if resume is not None:
+                    t = resume
 
     def _prepare_chunk(
         self, out: _RunOutputs, kept: dict, n_keep: int, depths, keypoints2d, confidence,

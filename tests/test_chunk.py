@@ -93,8 +93,9 @@ def test_a_trackers_first_call_steps_one_frame(scene):
 
     tracker.run(seq.depth[:20], kp[:20], conf[:20], progress=progress)
     assert sizes == [1, 16, 3]
-    # Reported once that first step was read: the next chunk may be queued behind it.
-    assert at_first_pose[0][0] == 1 and len(at_first_pose[0]) <= 2
+    # Reported as soon as that first step is read, before the host prepares the next chunk
+    # (on a cold start that work, slowed by the programs traced beside it, cost ~1 s).
+    assert at_first_pose[0] == [1]
     tracker.run(seq.depth[:20], kp[:20], conf[:20], progress=None)  # the track goes on
     assert sizes[3:] == [16, 4]
 
