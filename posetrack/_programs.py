@@ -231,8 +231,9 @@ _register_sentinels()
 #: ``tests/test_programs.py``).
 CPU_OPTIONS = {"xla_backend_optimization_level": 1}
 #: For programs that run a handful of times per recording (lifting for the body shape, the
-#: initialisation fit): XLA's older loop emitters compile in half the time and run a little
-#: slower, which costs milliseconds once.
+#: initialisation fit) or take well under a millisecond a frame (the online motion model):
+#: XLA's older loop emitters compile in half the time and run a little slower (the tracker
+#: step ran 13-18 % slower with them, so it keeps the default), which costs milliseconds.
 CPU_OPTIONS_RARE = {**CPU_OPTIONS, "xla_cpu_use_fusion_emitters": False}
 
 
@@ -249,7 +250,8 @@ class Program:
     Call it like the function (``static_argnums`` as for ``jax.jit``: hashable arguments with
     a stable ``repr``, part of the key). One instance is shared by every caller, so a
     configuration compiles once per process. ``rare``: the program runs a few times per
-    recording, so it compiles for compile time (:data:`CPU_OPTIONS_RARE`).
+    recording, or costs next to nothing when it runs, so it compiles for compile time
+    (:data:`CPU_OPTIONS_RARE`).
     """
 
     def __init__(
