@@ -233,7 +233,8 @@ CPU_OPTIONS = {"xla_backend_optimization_level": 1}
 #: For programs that run a handful of times per recording (lifting for the body shape, the
 #: initialisation fit) or take well under a millisecond a frame (the online motion model):
 #: XLA's older loop emitters compile in half the time and run a little slower (the tracker
-#: step ran 13-18 % slower with them, so it keeps the default), which costs milliseconds.
+#: step 15 %: ``benchmarks/compile_options.py``; it keeps the default), which costs
+#: milliseconds.
 CPU_OPTIONS_RARE = {**CPU_OPTIONS, "xla_cpu_use_fusion_emitters": False}
 
 

@@ -1515,7 +1515,7 @@ class Tracker:
         # comes as soon as the program is ready, not a whole chunk's steps later. Its result
         # is read before the next chunk is prepared: on a cold start the builder thread is
         # tracing the later programs then, and the host's work for 16 frames, slowed by it
-        # for the interpreter, delayed the first pose by ~1 s. (Not inside track_many: reading
+        # for the interpreter, delayed the first pose by 0.5-1 s. (Not inside track_many: reading
         # there would wait for the batch.)
         limit = 1 if self._step_calls == 0 else self.chunk
         first = self._step_calls == 0 and self._batched is None
