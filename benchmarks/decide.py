@@ -43,7 +43,7 @@ import time
 
 import numpy as np
 from seeds import TUNING_SEEDS, parse_seeds
-from tune import PROCEDURAL, REAL, check_seeds, real_motion
+from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion
 
 import posetrack as pt
 
@@ -151,12 +151,8 @@ def main() -> int:
                 t0 = time.perf_counter()
                 tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, **kwargs)
                 res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
-                est = res.keypoints3d
-                acc = pt.accuracy(est, seq.joints3d)
                 rec[name] = {
-                    "D": acc.mean_mm, "cov": acc.coverage,
-                    "swaps": pt.swapped_limb_frames(est, seq.joints3d),
-                    "accel": float(pt.acceleration_error(est, seq.joints3d)),
+                    **decision_measures(res.keypoints3d, seq.joints3d),
                     "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
                     "step_ms": res.ms_per_frame,
                 }  # fmt: skip

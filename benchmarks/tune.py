@@ -86,6 +86,17 @@ def mean_error_all_mm(keypoints3d: np.ndarray, truth: np.ndarray) -> float:
     return pt.accuracy(keypoints3d, truth, joints=ALL_KEYPOINTS).mean_mm
 
 
+def decision_measures(keypoints3d: np.ndarray, truth: np.ndarray) -> dict:
+    """What a decision run records of an output (``decide.py``, ``inpass_shape.py``): D over
+    the 13 body joints, coverage, swapped-limb frames and acceleration error."""
+    acc = pt.accuracy(keypoints3d, truth)
+    return {
+        "D": acc.mean_mm, "cov": acc.coverage,
+        "swaps": pt.swapped_limb_frames(keypoints3d, truth),
+        "accel": float(pt.acceleration_error(keypoints3d, truth)),
+    }  # fmt: skip
+
+
 def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip) -> tuple:
     """The command line and runs of a diagnosis over wide real-motion tuning clips (judge.py,
     online_gap.py, offline_shape.py): ``--seeds`` (tuning seeds only: anything else is a
