@@ -32,11 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import jax  # noqa: E402
-from tune import machine  # noqa: E402
 
 import posetrack as pt  # noqa: E402
 from posetrack import _programs, _tracker  # noqa: E402
 from posetrack._chunk import track_chunk  # noqa: E402
+from posetrack.app import machine_info  # noqa: E402
 
 OPTIONS = {
     "shipped": dict(_programs.CPU_OPTIONS),
@@ -112,7 +112,7 @@ def main() -> None:
             f"{r['ms_per_chunk_min']:>7.1f} {r['ratio_to_shipped']:>6.2f}  {r['same_outputs']}"
         )
     Path(a.out).write_text(json.dumps({
-        "benchmark": "compile_options.py", "reps": a.reps, "chunk": 16, "machine": machine(),
+        "benchmark": "compile_options.py", "reps": a.reps, "chunk": 16, "machine": machine_info(),
         "rows": rows,
     }, indent=1))  # fmt: skip
     print(f"wrote {a.out}")

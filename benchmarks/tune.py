@@ -30,12 +30,10 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import sys
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds  # benchmarks/seeds.py
 
@@ -201,24 +199,9 @@ def shipped_values() -> dict[str, float]:
 
 
 def machine() -> dict[str, object]:
-    """What the numbers were measured on (the library's own helper is private)."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(
-                (ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu
-            )
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "jax": jax.__version__,
-        "backend": jax.default_backend(),
-        "XLA_FLAGS": os.environ.get("XLA_FLAGS", ""),
-        "load_average": [round(x, 2) for x in os.getloadavg()],
-        "python": platform.python_version(),
-    }
+    """What the numbers were measured on: ``posetrack.app.machine_info`` and the load average
+    (a tuning run is long, and a busy machine reads slower)."""
+    return {**machine_info(), "load_average": [round(x, 2) for x in os.getloadavg()]}
 
 
 def run(args) -> dict:
