@@ -27,7 +27,8 @@ no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
-(``SideSettings.for_mode("online", online_frames=N)``),
+(``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
+(``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
@@ -71,6 +72,7 @@ _ONLINE_SIDES = {
     "anchor": ("online_anchor", float),
     "amarg": ("arbitrate_margin", float),
     "oframes": ("online_frames", int),
+    "omodel": ("online_model", float),
 }
 
 
@@ -119,8 +121,8 @@ def settings(variant: str) -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'kept', "
-        "'settleN', 'bandM', 'sides:G+G...'"
+        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
+        "'kept', 'settleN', 'bandM', 'sides:G+G...'"
     )
 
 

@@ -49,6 +49,8 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --facing-only ...   # both defaults, re-init keeping facing too
     python benchmarks/motion.py --neck-only 1 ...   # both defaults, head's turn limited too
     python benchmarks/motion.py --band-only 0.7 ... # both defaults, lifting's depth band too
+    python benchmarks/motion.py --model-only 0.1 ...  # LVM, online as shipped and with the pose
+                                                    # reading the left/right labels at ties
     python benchmarks/motion.py --defaults-only ... # LVM and both defaults only
     python benchmarks/motion.py --targets ...       # issue 12's target rows, all as shipped
 
@@ -134,6 +136,11 @@ BAND_ROWS = (
     "LVM", "MHT_h offline", "MHT_h offline, lift band", f"MHT_h online L={LAG}",
     f"MHT_h online L={LAG}, lift band",
 )  # fmt: skip
+#: ``--model-only TIE``: LVM and the online default, also with its own pose reading the
+#: left/right labels where the forward pass is within TIE of a tie
+#: (``SideSettings.for_mode("online", online_model=TIE)``; a candidate default, 2026-11-29).
+MODEL = ", pose reads ties"
+MODEL_ROWS = ("LVM", f"MHT_h online L={LAG}", f"MHT_h online L={LAG}{MODEL}")
 #: ``--defaults-only``: LVM and both defaults (offline, online at lag 3), nothing else: the
 #: before/after of a change to the defaults themselves, read beside an earlier run's rows
 #: (2026-11-28, the loss tests for a far, jittery person).
@@ -164,6 +171,7 @@ def run_clip(
     defaults_only: bool = False,
     band: float = 0.0,
     targets: bool = False,
+    model: float = 0.0,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -179,6 +187,14 @@ def run_clip(
         res = pt.track(*args, seq.intrinsics)
         out["MHT_h offline"], cost = res.keypoints3d, {"step_ms": res.ms_per_frame}
         out[f"MHT_h online L={LAG}"] = pt.track(*args, seq.intrinsics, mode="online").keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": cost}
+    if model > 0:
+        cost = {}
+        sides = pt.SideSettings.for_mode("online", online_model=model)
+        for suffix, kwargs in (("", {}), (MODEL, {"sides": sides})):
+            tr = pt.Tracker(seq.intrinsics, mode="online", **kwargs)
+            out[f"MHT_h online L={LAG}{suffix}"] = tr.run(*args).keypoints3d
+            cost[f"online_retracked_share{suffix}"] = _tracked_twice(tr) / frames
         return {"truth": seq.joints3d, "est": out, "cost": cost}
     if targets:
         _baseline_rows(seq, args, out)
@@ -372,6 +388,12 @@ def main() -> int:
         "at M metres (TrackerConfig(lift_band=M))",
     )  # fmt: skip
     ap.add_argument(
+        "--model-only", type=float, default=0.0, metavar="TIE",
+        help="LVM and the online default, also with its own pose reading the left/right labels "
+        "where the forward pass is within TIE metres of a tie "
+        "(SideSettings.for_mode('online', online_model=TIE))",
+    )  # fmt: skip
+    ap.add_argument(
         "--defaults-only", action="store_true",
         help="LVM and the offline and online defaults only (a change to the defaults, read "
         "beside an earlier run)",
@@ -403,8 +425,14 @@ def main() -> int:
         or a.defaults_only
     ):  # fmt: skip
         ap.error("--band-only excludes the other --*-only options")
+    if a.model_only and (
+        a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
+        or a.defaults_only or a.band_only or a.targets
+    ):  # fmt: skip
+        ap.error("--model-only excludes the other --*-only options and --targets")
     names = (
         TARGET_ROWS if a.targets else DEFAULT_ROWS if a.defaults_only
+        else MODEL_ROWS if a.model_only
         else NECK_ROWS if a.neck_only else BAND_ROWS if a.band_only
         else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
@@ -431,7 +459,7 @@ def main() -> int:
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
                 a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only, a.band_only,
-                a.targets,
+                a.targets, a.model_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -494,15 +522,31 @@ def main() -> int:
     costs = [c["cost"] for c in per_clip]
     few_costs = (
         a.refit_only or a.facing_only or a.neck_only or a.defaults_only or a.band_only or a.targets
-    )  # step only
-    cost = {} if a.offline_only or few_costs else {
-        "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
-        "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
-        "online_retracked_share_mean": float(np.mean([c["online_retracked_share"] for c in costs])),
-        "online_retracked_share_max": float(np.max([c["online_retracked_share"] for c in costs])),
-        # Online: the body shape refinement, once, after 60 tracked frames (a pause of update()).
-        "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
-    }  # fmt: skip
+        or a.model_only
+    )  # fmt: skip
+    if a.model_only:  # the share of frames the online judge tracked twice, with and without
+        cost = {
+            f"online_retracked_share_mean{suffix}": float(
+                np.mean([c[f"online_retracked_share{suffix}"] for c in costs])
+            )
+            for suffix in ("", MODEL)
+        }
+    elif a.offline_only or few_costs:
+        cost = {}
+    else:
+        cost = {
+            "online_ms_per_frame": float(np.median([c["online_ms"] for c in costs])),
+            "online_step_ms": float(np.median([c["online_step_ms"] for c in costs])),
+            "online_retracked_share_mean": float(
+                np.mean([c["online_retracked_share"] for c in costs])
+            ),
+            "online_retracked_share_max": float(
+                np.max([c["online_retracked_share"] for c in costs])
+            ),
+            # Online: the body shape refinement, after 20 and 60 tracked frames (a pause of
+            # update()).
+            "online_refine_s_median": float(np.median([c["online_refine_s"] for c in costs])),
+        }
     if not (a.online_only or few_costs):
         step = float(np.median([c["step_ms"] for c in costs]))
         cost.update({
@@ -586,7 +630,7 @@ def main() -> int:
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
-        "band_only": a.band_only,
+        "band_only": a.band_only, "model_only": a.model_only,
         "defaults_only": a.defaults_only, "targets": a.targets,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip

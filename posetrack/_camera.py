@@ -117,6 +117,19 @@ def project(intrinsics: Intrinsics, points: Float[Array, "*batch 3"]) -> Float[A
     return jnp.stack([u, v], axis=-1)
 
 
+def project_host(intrinsics: Intrinsics, points: np.ndarray) -> np.ndarray:
+    """:func:`project` in NumPy, for host-side bookkeeping (no device dispatch)."""
+    p = np.asarray(points, np.float64)
+    z = np.maximum(p[..., 2], 1e-3)
+    return np.stack(
+        [
+            intrinsics.fx * p[..., 0] / z + intrinsics.cx,
+            intrinsics.fy * p[..., 1] / z + intrinsics.cy,
+        ],
+        axis=-1,
+    )
+
+
 def backproject(
     intrinsics: Intrinsics, uv: Float[Array, "*batch 2"], z: Float[Array, "*batch"]
 ) -> Float[Array, "*batch 3"]:

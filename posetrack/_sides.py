@@ -202,6 +202,23 @@ class SideSettings:
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
     forward pass holds after the swap ended (a side hidden for a while) does not last."""
+    online_model: float = 0.0
+    """Online: where the forward pass's margin of a group is within this (m) of a tie, the
+    group is read as the tracker's own pose of the last tracked frame says
+    (:meth:`SideLabeller.refer`: the labelling under which the detections lie nearer that
+    pose projected into the image,
+    if it leads by more than :attr:`online_model_margin` and the pose is at most
+    :attr:`online_model_age` frames old). At a tie the forward pass's two paths trade places
+    for free and its reading follows ``switch_cost``: after a stretch where one side was
+    unseen or sat on the other (the margin drops to centimetres), it drops an exchange the
+    depth kept a frame later. The pose carried the depth's verdict and the motion through
+    those frames. 0: off (the forward pass alone). Not in the paper."""
+    online_model_margin: float = 0.05
+    """Online, with :attr:`online_model`: how much (m, summed over the group's seen keypoints)
+    nearer the tracker's pose one labelling must put the detections."""
+    online_model_age: int = 3
+    """Online, with :attr:`online_model`: the tracker's pose is used up to this many frames
+    after it was tracked."""
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> SideSettings:
@@ -229,6 +246,7 @@ class SideSettings:
             ("online_frames", 1),
             ("online_rejudge", 1),
             ("online_min_held", 1),
+            ("online_model_age", 0),
         ):
             n = getattr(self, name)
             if n is None and name == "online_frames":
@@ -238,14 +256,16 @@ class SideSettings:
                     f"SideSettings: {name} must be an int >= {least} (frames), got {n!r}"
                 )
         names = ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin")
-        for name in (*names, "arbitrate_margin", "online_anchor"):
+        for name in (*names, "arbitrate_margin", "online_anchor", "online_model",
+                     "online_model_margin"):  # fmt: skip
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"SideSettings: {name} must be a finite number, got {v!r}")
-        if self.online_anchor < 0:
-            raise ValueError(
-                f"SideSettings: online_anchor must be >= 0 (m), got {self.online_anchor!r}"
-            )
+        for name in ("online_anchor", "online_model", "online_model_margin"):
+            if getattr(self, name) < 0:
+                raise ValueError(
+                    f"SideSettings: {name} must be >= 0 (m), got {getattr(self, name)!r}"
+                )
         if self.switch_cost <= 0 or self.cap <= 0 or self.speed < 0 or self.two_sided_margin < 0:
             raise ValueError(
                 "SideSettings: switch_cost and cap must be positive, speed and "
@@ -313,11 +333,14 @@ class SideLabeller:
         self._px = [np.zeros((2, len(k), 2)) for k in self._slots]
         self._seen = [np.zeros((2, len(k)), bool) for k in self._slots]
         self._age = [np.zeros((2, len(k))) for k in self._slots]
+        # The tracker's own pose (online_model): (18, 2) pixels and frames since it was tracked.
+        self._model: np.ndarray | None = None
+        self._model_age = 0
 
     @property
     def exchanged(self) -> np.ndarray:
-        """``bool (groups,)`` the labelling chosen for the last frame, per
-        ``settings.groups``."""
+        """``bool (groups,)`` the forward pass's labelling of the last frame, per
+        ``settings.groups`` (before any :attr:`SideSettings.online_model` reading)."""
         return self._cost[:, 1] < self._cost[:, 0]
 
     @property
@@ -333,6 +356,42 @@ class SideLabeller:
         for g in np.flatnonzero(np.asarray(groups, bool)):
             cost = self._cost[g] - self._cost[g].min()
             self._cost[g] = (max(cost[0], float(margin)), 0.0)
+
+    def refer(self, keypoints2d: np.ndarray | None) -> None:
+        """Tell the labeller the tracker's pose of the frame just tracked, projected into the
+        image (``(18, 2)`` pixels), or None where that frame was not tracked (the last pose
+        ages by a frame). Read by :meth:`update` with :attr:`SideSettings.online_model`."""
+        if keypoints2d is None:
+            self._model_age += 1
+        else:
+            self._model = np.asarray(keypoints2d, np.float64).reshape(18, 2)
+            self._model_age = 0
+
+    def _model_reading(
+        self, kp: np.ndarray, seen: np.ndarray, m_per_px: float, exchanged: np.ndarray
+    ) -> np.ndarray:
+        """``exchanged`` with each group whose forward margin is within
+        :attr:`SideSettings.online_model` of a tie read as the tracker's pose says (where it
+        says so by more than :attr:`SideSettings.online_model_margin`)."""
+        s = self.settings
+        out = exchanged.copy()
+        for g, (slots, flipped) in enumerate(zip(self._slots, self._flipped, strict=True)):
+            if abs(self.margin[g]) >= s.online_model:
+                continue
+            cost = [
+                np.minimum(
+                    np.where(
+                        seen[fill],
+                        np.linalg.norm(kp[fill] - self._model[slots], axis=-1) * m_per_px,
+                        0.0,
+                    ),
+                    s.cap,
+                ).sum()
+                for fill in (slots, flipped)
+            ]
+            if abs(cost[1] - cost[0]) > s.online_model_margin:
+                out[g] = cost[1] < cost[0]
+        return out
 
     def relabel(
         self, keypoints2d: np.ndarray, confidence: np.ndarray, exchanged: np.ndarray
@@ -360,7 +419,9 @@ class SideLabeller:
 
         Returns:
             ``(keypoints2d, confidence, exchanged)``: copies with each exchanged group's left
-            and right keypoints and confidences swapped; ``exchanged`` ``bool (groups,)``.
+            and right keypoints and confidences swapped; ``exchanged`` ``bool (groups,)``:
+            :attr:`exchanged`, or with :attr:`SideSettings.online_model` and a pose from
+            :meth:`refer`, that pose's reading where the forward pass is near a tie.
         """
         s = self.settings
         kp = np.asarray(keypoints2d, np.float64).reshape(18, 2)
@@ -395,6 +456,8 @@ class SideLabeller:
             self._px[g], self._seen[g], self._age[g] = px, was_seen, age
             self._cost[g] = cost - cost.min()
         ex = self.exchanged
+        if s.online_model > 0 and self._model is not None and self._model_age <= s.online_model_age:
+            ex = self._model_reading(kp, seen, m_per_px, ex)
         return (*self.relabel(keypoints2d, confidence, ex), ex)
 
 

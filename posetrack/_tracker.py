@@ -31,7 +31,7 @@ from ._associate import (
     other_people_mask,
 )
 from ._batcher import Pending, resolve
-from ._camera import Intrinsics
+from ._camera import Intrinsics, project_host
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
@@ -1152,6 +1152,11 @@ class Tracker:
         est, st = self._update_frame(depth, keypoints2d, confidence)
         if self.mode != "online":
             return est, st
+        if self._labeller is not None and self.sides.online_model > 0:
+            # The next frame's left/right reading may ask this frame's pose (near a tie).
+            self._labeller.refer(
+                None if st != TRACKED else project_host(self.intrinsics, est.keypoints3d)
+            )
         observed = est is not None and st != NO_OBSERVATION
         conf = keypoint_confidence(est) * (0.5 if st == LOST else 1.0) if observed else np.zeros(18)
         newest = self._online(est if observed else None, conf)

@@ -163,6 +163,10 @@ def test_settings_and_labeller_reject_bad_values():
         pt.SideSettings(online_min_held=0)
     with pytest.raises(ValueError, match="online_anchor"):
         pt.SideSettings(online_anchor=-0.1)
+    with pytest.raises(ValueError, match="online_model"):
+        pt.SideSettings(online_model=-0.1)
+    with pytest.raises(ValueError, match="online_model_age"):
+        pt.SideSettings(online_model_age=-1)
     with pytest.raises(ValueError, match="fx"):
         pt.SideLabeller(0.0)
     with pytest.raises(TypeError, match="SideSettings"):
@@ -193,6 +197,46 @@ def test_an_anchor_holds_an_exchange_that_coinciding_sides_left_ambiguous():
     free, held = reads[False], reads[True]
     assert free[swapped[1:]].mean() < 0.2 and free[56:70].mean() > 0.8, free.astype(int)
     assert held[swapped[1:]].all() and not held[56:].any(), held.astype(int)
+
+
+def test_the_trackers_pose_reads_the_labels_where_the_forward_pass_is_at_a_tie():
+    """The anchor's scene: the right arm reported on the left one leaves the forward pass
+    without memory, so it misses the swap that follows. Told the tracker's pose each frame
+    (``refer``; here the true keypoints: a pose that followed the right labels), the reading
+    follows it where the forward margin is near a tie (``online_model``), and the pose's age
+    limit and the confident forward pass both hold it back. (Within a tie the forward
+    margin drifts toward "as detected" by ``switch_cost`` a frame, so the pose decides for
+    about ``online_model / switch_cost`` frames: 10 here.)"""
+    kp, conf, p3, has = _walk()
+    truth = kp.copy()
+    together, swapped = np.arange(20, 35), np.arange(35, 43)
+    for a, b in ARMS:
+        kp[together, a] = kp[together, b] + 1.0
+    bad_kp, bad_conf = _swap(kp, conf, swapped, ARMS)
+
+    def read(settings, refer=lambda t: truth[t]):
+        lab = pt.SideLabeller(FX, settings)
+        ex, margins = [], []
+        for t in range(len(kp)):
+            ex.append(lab.update(bad_kp[t], bad_conf[t], p3[t], has[t])[2])
+            margins.append(lab.margin.copy())
+            lab.refer(refer(t))
+        return np.stack(ex)[:, 0], np.stack(margins)[:, 0]
+
+    free, margin = read(pt.SideSettings())
+    assert free[swapped[1:]].mean() < 0.2  # the forward pass alone misses the swap
+    assert np.abs(margin[swapped]).max() < 0.1  # ... at a tie
+    held, _ = read(pt.SideSettings(online_model=0.1))
+    assert held[swapped].all() and not held[43:].any(), held.astype(int)
+    assert (held[:35] == free[:35]).all()  # coinciding detections: the pose cannot tell
+    # A pose older than online_model_age frames is not asked.
+    stale, _ = read(pt.SideSettings(online_model=0.1), lambda t: truth[t] if t < 30 else None)
+    assert (stale == free).all()
+    # A pose that says "exchanged" everywhere moves only the near-tie frames: before the
+    # detections coincided the forward pass is sure of the labels.
+    turned = _swap(truth, conf, np.arange(len(kp)), ARMS)[0]
+    wrong, _ = read(pt.SideSettings(online_model=0.1), lambda t: turned[t])
+    assert not wrong[1:20].any() and (np.abs(margin[1:20]) >= 0.1).all()
 
 
 def test_reset_forgets_the_past():
