@@ -84,6 +84,25 @@ whatever the depth says: a detector outlier's jump reads as a one-frame exchange
 wide tuning clips a Delta sum a hair lower kept such readings (with the rule the mean of
 the four wide D's fell by 1.6 mm; benchmarks/README.md).
 
+**Online, the tracker's own pose reads the labels where the 2D continuity cannot**
+(:attr:`SideSettings.online_model`). After a stretch where one side was unseen, or sat on the
+other (a knee reported on the other knee), the forward pass's two paths cost the same: its
+margin falls to centimetres, the paths trade places for free, and its reading follows
+``switch_cost``, so it drops an exchange the depth kept a frame later and reads the swap's
+end as a new one (a wide tuning clip: the legs fitted swapped for 10 frames, then again for
+9). There the group is read as the tracker's last tracked pose says: the labelling under which
+the detections lie nearer that pose projected into the image (:meth:`SideLabeller.refer`);
+the judge, the veto and the re-judgement work on that reading as on the forward pass's.
+Within a tie the forward margin still drifts toward "as detected" by ``switch_cost`` a frame,
+so the pose decides for about ``online_model / switch_cost`` frames (10 at 0.1 m) and a
+swapped pose cannot hold its swap for longer. **Opt-in** (default 0): on 96 wide real tuning
+runs it met a rule written first (benchmarks/README.md: D 73.52 -> 71.21 mm, swapped-limb
+frames 715 -> 597, 17 runs better and 4 worse by more than 5 mm), but two report sets got
+worse (wide clean 46.9 -> 51.4 mm, a side-view walk 88 -> 144; real motion wide occluded
+97.1 -> 100.4, one clip 147 -> 189), which the rule made a stop. Where it loses, the pose it asks had followed a swap the forward
+pass never read, and it holds that swap longer. Offline the two-sided reading has no such
+blind spot and the chunked pass has no pose on the host in time, so it is online only.
+
 **The torso is relabelled too, online and offline** (:meth:`SideSettings.for_mode`): a
 detector that reads the person as facing the other way exchanges every pair at once,
 shoulders and hips included (the wide generator's whole-body swaps). Undone limb by limb,
@@ -212,7 +231,8 @@ class SideSettings:
     for free and its reading follows ``switch_cost``: after a stretch where one side was
     unseen or sat on the other (the margin drops to centimetres), it drops an exchange the
     depth kept a frame later. The pose carried the depth's verdict and the motion through
-    those frames. 0: off (the forward pass alone). Not in the paper."""
+    those frames. 0: off (the forward pass alone; the default: 0.1 met its rule on tuning
+    runs and was stopped by a report set, see the module docstring). Not in the paper."""
     online_model_margin: float = 0.05
     """Online, with :attr:`online_model`: how much (m, summed over the group's seen keypoints)
     nearer the tracker's pose one labelling must put the detections."""

@@ -626,6 +626,20 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     assert n_fixed < pt.swapped_limb_frames(raw.keypoints3d, gt)
 
 
+def _online_pair(clip, kp, conf, field: str, values: tuple, calls: list) -> dict:
+    """Online runs (refine off) with ``SideSettings.for_mode("online", field=value)`` for each
+    value: ``{value: (result, side_spans)}``. ``calls`` (what a monkeypatched labeller method
+    records) must still be empty after the first value's run."""
+    runs = {}
+    for i, value in enumerate(values):
+        sides = pt.SideSettings.for_mode("online", **{field: value})
+        tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
+        runs[value] = tr.run(clip.depth, kp, conf), tr.side_spans
+        if i == 0:
+            assert calls == []
+    return runs
+
+
 def test_online_a_kept_exchange_anchors_the_labelling(clip, monkeypatch):
     """With ``SideSettings.online_anchor`` the forward labelling is anchored to an exchange
     the depth kept, once, at the judgement's end, for the judged groups only; where the 2D
@@ -641,13 +655,7 @@ def test_online_a_kept_exchange_anchors_the_labelling(clip, monkeypatch):
         anchor(self, groups, margin)
 
     monkeypatch.setattr(pt.SideLabeller, "anchor", recorded)
-    runs = {}
-    for margin in (0.0, 0.5):
-        sides = pt.SideSettings.for_mode("online", online_anchor=margin)
-        tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
-        runs[margin] = tr.run(clip.depth, kp, conf), tr.side_spans
-        if margin == 0.0:
-            assert calls == []
+    runs = _online_pair(clip, kp, conf, "online_anchor", (0.0, 0.5), calls)
     k = pt.ONLINE_LAG + 1
     assert [s[:2] for s in runs[0.5][1]][:1] == [(12, 12 + k)] and runs[0.5][1][0][-1]
     assert len(calls) == 1, calls
@@ -658,6 +666,41 @@ def test_online_a_kept_exchange_anchors_the_labelling(clip, monkeypatch):
     assert plain_spans == anchored_spans
     np.testing.assert_array_equal(anchored.exchanged, plain.exchanged)
     np.testing.assert_array_equal(anchored.keypoints3d, plain.keypoints3d)
+
+
+def test_online_the_labeller_is_told_each_frames_pose(clip, monkeypatch):
+    """With ``SideSettings.online_model`` the online tracker tells the labeller every tracked
+    frame's pose, projected (what the next frame's reading asks near a tie); on a clean arm
+    swap, where the forward margin is never near a tie, the output is the same bit for bit.
+    Without it (0) the labeller is never told."""
+    sw = np.arange(12, 28)
+    kp, conf = _arm_swap(clip, sw)
+    told = []
+    refer = pt.SideLabeller.refer
+
+    def recorded(self, keypoints2d):
+        told.append(None if keypoints2d is None else np.array(keypoints2d))
+        refer(self, keypoints2d)
+
+    monkeypatch.setattr(pt.SideLabeller, "refer", recorded)
+    runs = _online_pair(clip, kp, conf, "online_model", (0.0, 0.1), told)
+    (plain, plain_spans), (told_run, told_spans) = runs[0.0], runs[0.1]
+    # One call per step (a judged frame is tracked twice), a pose for every tracked one.
+    k = pt.ONLINE_LAG + 1
+    assert len(told) == len(clip.depth) + k * len(told_spans), (len(told), told_spans)
+    assert all(t is not None for t in told)
+    assert plain_spans == told_spans
+    np.testing.assert_array_equal(told_run.exchanged, plain.exchanged)
+    np.testing.assert_array_equal(told_run.keypoints3d, plain.keypoints3d)
+    # What it is told is the frame's own pose (update's estimate at lag 3), projected.
+    sides = pt.SideSettings.for_mode("online", online_model=0.1)
+    tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
+    for t in range(5):
+        est, status = tr.update(clip.depth[t], kp[t], conf[t])
+    assert status == pt.TRACKED
+    K, k3 = clip.intrinsics, np.asarray(est.keypoints3d, np.float64)
+    uv = np.stack([K.fx * k3[:, 0] / k3[:, 2] + K.cx, K.fy * k3[:, 1] / k3[:, 2] + K.cy], -1)
+    np.testing.assert_allclose(told[-1], uv, atol=1e-3)
 
 
 def _misread(monkeypatch, clip, arms: range, legs: range) -> None:
