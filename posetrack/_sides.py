@@ -99,9 +99,10 @@ swapped pose cannot hold its swap for longer. **Opt-in** (default 0): on 96 wide
 runs it met a rule written first (benchmarks/README.md: D 73.52 -> 71.21 mm, swapped-limb
 frames 715 -> 597, 17 runs better and 4 worse by more than 5 mm), but two report sets got
 worse (wide clean 46.9 -> 51.4 mm, a side-view walk 88 -> 144; real motion wide occluded
-97.1 -> 100.4, one clip 147 -> 189), which the rule made a stop. Where it loses, the pose it asks had followed a swap the forward
-pass never read, and it holds that swap longer. Offline the two-sided reading has no such
-blind spot and the chunked pass has no pose on the host in time, so it is online only.
+97.1 -> 100.4, one clip 147 -> 189), which the rule made a stop. Where it loses, the pose
+it asks had followed a swap the forward pass never read, and it holds that swap longer.
+Offline the two-sided reading has no such blind spot and the chunked pass has no pose on
+the host in time, so it is online only.
 
 **The torso is relabelled too, online and offline** (:meth:`SideSettings.for_mode`): a
 detector that reads the person as facing the other way exchanges every pair at once,
@@ -225,14 +226,14 @@ class SideSettings:
     """Online: where the forward pass's margin of a group is within this (m) of a tie, the
     group is read as the tracker's own pose of the last tracked frame says
     (:meth:`SideLabeller.refer`: the labelling under which the detections lie nearer that
-    pose projected into the image,
-    if it leads by more than :attr:`online_model_margin` and the pose is at most
-    :attr:`online_model_age` frames old). At a tie the forward pass's two paths trade places
-    for free and its reading follows ``switch_cost``: after a stretch where one side was
-    unseen or sat on the other (the margin drops to centimetres), it drops an exchange the
-    depth kept a frame later. The pose carried the depth's verdict and the motion through
-    those frames. 0: off (the forward pass alone; the default: 0.1 met its rule on tuning
-    runs and was stopped by a report set, see the module docstring). Not in the paper."""
+    pose projected into the image, if it leads by more than :attr:`online_model_margin` and
+    the pose is at most :attr:`online_model_age` frames old). At a tie the forward pass's
+    two paths trade places for free and its reading follows ``switch_cost``: after a
+    stretch where one side was unseen or sat on the other (the margin drops to
+    centimetres), it drops an exchange the depth kept a frame later. The pose carried the
+    depth's verdict and the motion through those frames. 0: off (the forward pass alone;
+    the default: 0.1 met its rule on tuning runs and was stopped by two report sets, see
+    the module docstring). Not in the paper."""
     online_model_margin: float = 0.05
     """Online, with :attr:`online_model`: how much (m, summed over the group's seen keypoints)
     nearer the tracker's pose one labelling must put the detections."""
