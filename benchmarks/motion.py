@@ -138,7 +138,8 @@ BAND_ROWS = (
 )  # fmt: skip
 #: ``--model-only TIE``: LVM and the online default, also with its own pose reading the
 #: left/right labels where the forward pass is within TIE of a tie
-#: (``SideSettings.for_mode("online", online_model=TIE)``; a candidate default, 2026-11-29).
+#: (``SideSettings.for_mode("online", online_model=TIE)``; a candidate default of 2026-11-29,
+#: stopped by two report sets: opt-in, results/motion_model*.json).
 MODEL = ", pose reads ties"
 MODEL_ROWS = ("LVM", f"MHT_h online L={LAG}", f"MHT_h online L={LAG}{MODEL}")
 #: ``--defaults-only``: LVM and both defaults (offline, online at lag 3), nothing else: the
