@@ -119,15 +119,11 @@ def project(intrinsics: Intrinsics, points: Float[Array, "*batch 3"]) -> Float[A
 
 def project_host(intrinsics: Intrinsics, points: np.ndarray) -> np.ndarray:
     """:func:`project` in NumPy, for host-side bookkeeping (no device dispatch)."""
+    fx, fy, cx, cy = (float(v) for v in (intrinsics.fx, intrinsics.fy, intrinsics.cx,
+                                         intrinsics.cy))  # fmt: skip
     p = np.asarray(points, np.float64)
     z = np.maximum(p[..., 2], 1e-3)
-    return np.stack(
-        [
-            intrinsics.fx * p[..., 0] / z + intrinsics.cx,
-            intrinsics.fy * p[..., 1] / z + intrinsics.cy,
-        ],
-        axis=-1,
-    )
+    return np.stack([fx * p[..., 0] / z + cx, fy * p[..., 1] / z + cy], axis=-1)
 
 
 def backproject(

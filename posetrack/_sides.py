@@ -388,32 +388,6 @@ class SideLabeller:
             self._model = np.asarray(keypoints2d, np.float64).reshape(18, 2)
             self._model_age = 0
 
-    def _model_reading(
-        self, kp: np.ndarray, seen: np.ndarray, m_per_px: float, exchanged: np.ndarray
-    ) -> np.ndarray:
-        """``exchanged`` with each group whose forward margin is within
-        :attr:`SideSettings.online_model` of a tie read as the tracker's pose says (where it
-        says so by more than :attr:`SideSettings.online_model_margin`)."""
-        s = self.settings
-        out = exchanged.copy()
-        for g, (slots, flipped) in enumerate(zip(self._slots, self._flipped, strict=True)):
-            if abs(self.margin[g]) >= s.online_model:
-                continue
-            cost = [
-                np.minimum(
-                    np.where(
-                        seen[fill],
-                        np.linalg.norm(kp[fill] - self._model[slots], axis=-1) * m_per_px,
-                        0.0,
-                    ),
-                    s.cap,
-                ).sum()
-                for fill in (slots, flipped)
-            ]
-            if abs(cost[1] - cost[0]) > s.online_model_margin:
-                out[g] = cost[1] < cost[0]
-        return out
-
     def relabel(
         self, keypoints2d: np.ndarray, confidence: np.ndarray, exchanged: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -450,9 +424,18 @@ class SideLabeller:
         p3 = np.asarray(points3d, np.float64).reshape(18, 3)
         seen = (conf > s.min_confidence) & np.isfinite(kp).all(axis=-1)
         m_per_px = metres_per_pixel(p3, has_depth, seen, self.fx)
+        ask_pose = (
+            s.online_model > 0 and self._model is not None and self._model_age <= s.online_model_age
+        )
+        # online_model: per group, how far (m) the detections lie from the tracker's pose
+        # under each labelling [as detected, exchanged].
+        pose_cost = np.zeros((len(self._slots), 2))
         for g, orders in enumerate(zip(self._slots, self._flipped, strict=True)):
             # What fills the slots under each labelling: (labelling, slot, ...).
             okp, oseen = kp[np.stack(orders)], seen[np.stack(orders)]
+            if ask_pose:
+                d = np.linalg.norm(okp - self._model[orders[0]], axis=-1) * m_per_px
+                pose_cost[g] = np.minimum(np.where(oseen, d, 0.0), s.cap).sum(axis=-1)
             # Jump costs [previous labelling, this labelling, slot].
             d = np.linalg.norm(okp[None] - self._px[g][:, None], axis=-1) * m_per_px
             d = np.maximum(d - s.speed * (self._age[g][:, None] - 1.0), 0.0)
@@ -477,8 +460,11 @@ class SideLabeller:
             self._px[g], self._seen[g], self._age[g] = px, was_seen, age
             self._cost[g] = cost - cost.min()
         ex = self.exchanged
-        if s.online_model > 0 and self._model is not None and self._model_age <= s.online_model_age:
-            ex = self._model_reading(kp, seen, m_per_px, ex)
+        if ask_pose:
+            # Near a tie of the forward pass, the labelling the pose prefers by enough.
+            lead = pose_cost[:, 1] - pose_cost[:, 0]
+            ask = (np.abs(self.margin) < s.online_model) & (np.abs(lead) > s.online_model_margin)
+            ex = np.where(ask, lead < 0, ex)
         return (*self.relabel(keypoints2d, confidence, ex), ex)
 
 
