@@ -31,6 +31,8 @@ no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off),
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
+``confX`` (``TrackerConfig(depth_confidence=X)``), ``farX`` (the same on the far side's
+limbs in a side view only, ``depth_confidence_far=True``),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
 names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
@@ -49,10 +51,28 @@ from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion
 import posetrack as pt
 
 
-def clips(real_seeds: list[int] | None = None) -> list[tuple[str, int, str, str]]:
+def clips(
+    real_seeds: list[int] | None = None, side_seeds: list[int] | None = None
+) -> list[tuple[str, int, str, str]]:
     """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions), or
     with ``real_seeds`` the wide real motion clips of those tuning seeds
-    (:func:`tune.real_motion`, as ``losses.py --kind real``)."""
+    (:func:`tune.real_motion`, as ``losses.py --kind real``); ``side_seeds`` adds wide
+    procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
+    room and turning round, a motion the 40 clips do not have)."""
+    out = (
+        []
+        if side_seeds is None
+        else [("walk_across", s, "walk_across", "wide") for s in side_seeds]
+    )
+    if side_seeds is not None:
+        try:
+            check_seeds(side_seeds)
+        except ValueError as e:
+            raise SystemExit(f"error: --side-seeds: {e}") from None
+    return _base_clips(real_seeds) + out
+
+
+def _base_clips(real_seeds: list[int] | None) -> list[tuple[str, int, str, str]]:
     if real_seeds is not None:
         try:
             check_seeds(real_seeds)
@@ -107,6 +127,15 @@ def settings(variant: str) -> dict:
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
+    for prefix, far in (("conf", False), ("far", True)):
+        if variant.startswith(prefix):
+            try:
+                ratio = float(variant[len(prefix) :])
+                return {
+                    "config": pt.TrackerConfig(depth_confidence=ratio, depth_confidence_far=far)
+                }
+            except ValueError as e:
+                raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("band"):
         try:
             return {"config": pt.TrackerConfig(lift_band=float(variant[4:]))}
@@ -122,7 +151,7 @@ def settings(variant: str) -> dict:
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
-        "'kept', 'settleN', 'bandM', 'sides:G+G...'"
+        "'kept', 'settleN', 'bandM', 'confX', 'farX', 'sides:G+G...'"
     )
 
 
@@ -137,8 +166,17 @@ def main() -> int:
     ap.add_argument(
         "--real-seeds", help="instead of the 40 clips: wide real motion clips, e.g. 100-123"
     )
+    ap.add_argument(
+        "--side-seeds", help="add wide walk_across clips (a side view) of these tuning seeds"
+    )
+    ap.add_argument(
+        "--no-base", action="store_true", help="only the --side-seeds clips, not the 40"
+    )
     a = ap.parse_args()
-    chosen = clips(None if a.real_seeds is None else parse_seeds(a.real_seeds))
+    side = None if a.side_seeds is None else parse_seeds(a.side_seeds)
+    chosen = clips(None if a.real_seeds is None else parse_seeds(a.real_seeds), side)
+    if a.no_base:
+        chosen = [c for c in chosen if c[0] == "walk_across"]
     variants = {v: settings(v) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]

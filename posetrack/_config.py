@@ -121,6 +121,7 @@ class TrackerConfig(eqx.Module):
     benchmarks/README.md). Every lifting of the tracker uses it. Traced."""
     confidence_threshold: float = 0.4
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
+    depth_confidence_far: bool = eqx.field(default=False, static=True)
     depth_confidence: float = 0.0
     """Off by default (0, the paper: every detected keypoint with valid depth is a 3D
     landmark). Above 0, a detected keypoint's depth is a 3D landmark of the per-frame step

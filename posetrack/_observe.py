@@ -150,7 +150,9 @@ def lift_keypoints(
     )
 
 
-def confident_depth(landmarks: Landmarks, ratio: Float[Array, ""] | float) -> Landmarks:
+def confident_depth(
+    landmarks: Landmarks, ratio: Float[Array, ""] | float, where: Bool[Array, " kpt"] | None = None
+) -> Landmarks:
     """``landmarks`` with F_i cleared (and O_i zeroed) where the keypoint's confidence is below
     ``ratio`` times the median confidence of the frame's detected body keypoints (neck to
     ankles); the 2D detections stay (f_i). Jittable; ``ratio`` may be traced.
@@ -164,7 +166,10 @@ def confident_depth(landmarks: Landmarks, ratio: Float[Array, ""] | float) -> La
     body = np.asarray(BODY_JOINTS)
     median = jnp.nanmedian(jnp.where(landmarks.detected[body], c[body], jnp.nan))
     median = jnp.where(jnp.isnan(median), 0.0, median)
-    has_depth = landmarks.has_depth & (c >= ratio * median)
+    low = c < ratio * median
+    if where is not None:
+        low = low & where
+    has_depth = landmarks.has_depth & ~low
     return Landmarks(
         keypoints2d=landmarks.keypoints2d,
         confidence=landmarks.confidence,

@@ -198,6 +198,21 @@ def landmark_agreement(
     return jnp.where(n > 0, jnp.sum(near & plausible) / jnp.maximum(n, 1), 1.0)
 
 
+#: Limb keypoints (elbow, wrist, knee, ankle) of the right and the left side.
+_LIMBS_R, _LIMBS_L = (3, 4, 9, 10), (6, 7, 12, 13)
+FAR_SIDE_SIN = 0.5
+
+
+def far_side(k: Float[Array, "kpt 3"]) -> Bool[Array, " kpt"]:
+    """The limb keypoints of the side turned away from the camera in a side view."""
+    dz = 0.5 * (k[2, 2] - k[5, 2] + k[8, 2] - k[11, 2])
+    width = 0.5 * (jnp.linalg.norm(k[2] - k[5]) + jnp.linalg.norm(k[8] - k[11]))
+    s = dz / jnp.maximum(width, 1e-3)
+    mask = jnp.zeros(k.shape[0], bool)
+    mask = mask.at[jnp.array(_LIMBS_R)].set(s > FAR_SIDE_SIN)
+    return mask.at[jnp.array(_LIMBS_L)].set(s < -FAR_SIDE_SIN)
+
+
 def tracker_step(
     config: TrackerConfig,
     shape: body.BodyShape,
@@ -229,7 +244,12 @@ def tracker_step(
     # With TrackerConfig.depth_confidence > 0 (off by default), keypoints detected far less
     # confidently than the rest of the body (inferred behind an occluder: their depth is the
     # occluder's) are fitted in 2D only. At 0 the landmarks are unchanged.
-    lm = confident_depth(lm, config.depth_confidence)
+    if config.depth_confidence_far:
+        lm = confident_depth(
+            lm, config.depth_confidence, far_side(body.keypoints(shape, state.best))
+        )
+    else:
+        lm = confident_depth(lm, config.depth_confidence)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
         # Every other hypothesis leaves out the 3D landmarks that the previous output says
