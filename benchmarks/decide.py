@@ -32,7 +32,7 @@ no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 ``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
 ``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
 ``confX`` (``TrackerConfig(depth_confidence=X)``), ``farX`` (the same on the far side's
-limbs in a side view only, ``depth_confidence_far=True``),
+limbs in a side view only, ``TrackerConfig(depth_confidence_far=X)``),
 ``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
 names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
@@ -127,13 +127,10 @@ def settings(variant: str) -> dict:
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
-    for prefix, far in (("conf", False), ("far", True)):
+    for prefix, field in (("conf", "depth_confidence"), ("far", "depth_confidence_far")):
         if variant.startswith(prefix):
             try:
-                ratio = float(variant[len(prefix) :])
-                return {
-                    "config": pt.TrackerConfig(depth_confidence=ratio, depth_confidence_far=far)
-                }
+                return {"config": pt.TrackerConfig(**{field: float(variant[len(prefix) :])})}
             except ValueError as e:
                 raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("band"):

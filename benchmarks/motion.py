@@ -51,6 +51,8 @@ seeds 100-103 of ``TUNING_SEEDS``).
     python benchmarks/motion.py --band-only 0.7 ... # both defaults, lifting's depth band too
     python benchmarks/motion.py --model-only 0.1 ...  # LVM, online as shipped and with the pose
                                                     # reading the left/right labels at ties
+    python benchmarks/motion.py --far-only 1.0 ...  # LVM, both modes with the far side's
+                                                    # unconfident limbs fitted in 2D
     python benchmarks/motion.py --defaults-only ... # LVM and both defaults only
     python benchmarks/motion.py --targets ...       # issue 12's target rows, all as shipped
 
@@ -153,6 +155,12 @@ TARGET_ROWS = (
     "naive lifting", "LVM", "MHT_h per-frame", "MHT_h + Gaussian", "MHT_h offline",
     f"MHT_h online L={LAG}",
 )  # fmt: skip
+#: ``--far-only R``: LVM and both modes with the confidence gate on the far side's limbs in a
+#: side view (``TrackerConfig(depth_confidence_far=R)``; a candidate
+#: of 2026-11-29). The defaults' rows are not run again: the same clips' rows of ``--targets``
+#: (and the offline ones of the smoother's pose weight) are read beside them.
+FAR = ", far side gated"
+FAR_ROWS = ("LVM", f"MHT_h offline{FAR}", f"MHT_h online L={LAG}{FAR}")
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
 
@@ -173,6 +181,7 @@ def run_clip(
     band: float = 0.0,
     targets: bool = False,
     model: float = 0.0,
+    far: float = 0.0,
 ) -> dict:
     """Every row's estimate of one clip (``online_only``: :data:`ONLINE_ROWS`;
     ``offline_only``: :data:`OFFLINE_ROWS`) and the costs measured on it."""
@@ -197,6 +206,13 @@ def run_clip(
             out[f"MHT_h online L={LAG}{suffix}"] = tr.run(*args).keypoints3d
             cost[f"online_retracked_share{suffix}"] = _tracked_twice(tr) / frames
         return {"truth": seq.joints3d, "est": out, "cost": cost}
+    if far > 0:
+        config = pt.TrackerConfig(depth_confidence_far=far)
+        out[f"MHT_h offline{FAR}"] = pt.track(*args, seq.intrinsics, config).keypoints3d
+        out[f"MHT_h online L={LAG}{FAR}"] = pt.track(
+            *args, seq.intrinsics, config, mode="online"
+        ).keypoints3d
+        return {"truth": seq.joints3d, "est": out, "cost": {}}
     if targets:
         _baseline_rows(seq, args, out)
         res = pt.track(*args, seq.intrinsics)
@@ -395,6 +411,12 @@ def main() -> int:
         "(SideSettings.for_mode('online', online_model=TIE))",
     )  # fmt: skip
     ap.add_argument(
+        "--far-only", type=float, default=0.0, metavar="R",
+        help="LVM and both modes with the confidence gate on the far side's limbs in a side "
+        "view (TrackerConfig(depth_confidence_far=R)); the defaults' "
+        "rows are those of --targets on the same clips",
+    )  # fmt: skip
+    ap.add_argument(
         "--defaults-only", action="store_true",
         help="LVM and the offline and online defaults only (a change to the defaults, read "
         "beside an earlier run)",
@@ -431,9 +453,14 @@ def main() -> int:
         or a.defaults_only or a.band_only or a.targets
     ):  # fmt: skip
         ap.error("--model-only excludes the other --*-only options and --targets")
+    if a.far_only and (
+        a.online_only or a.offline_only or a.refit_only or a.facing_only or a.neck_only
+        or a.defaults_only or a.band_only or a.targets or a.model_only
+    ):  # fmt: skip
+        ap.error("--far-only excludes the other --*-only options and --targets")
     names = (
         TARGET_ROWS if a.targets else DEFAULT_ROWS if a.defaults_only
-        else MODEL_ROWS if a.model_only
+        else MODEL_ROWS if a.model_only else FAR_ROWS if a.far_only
         else NECK_ROWS if a.neck_only else BAND_ROWS if a.band_only
         else FACING_ROWS if a.facing_only
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
@@ -460,7 +487,7 @@ def main() -> int:
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,
                 a.refit_only, a.facing_only, a.keep, a.neck_only, a.defaults_only, a.band_only,
-                a.targets, a.model_only,
+                a.targets, a.model_only, a.far_only,
             )  # fmt: skip
             gt = r["truth"]
             rows = {}
@@ -523,7 +550,7 @@ def main() -> int:
     costs = [c["cost"] for c in per_clip]
     few_costs = (
         a.refit_only or a.facing_only or a.neck_only or a.defaults_only or a.band_only or a.targets
-        or a.model_only
+        or a.model_only or a.far_only
     )  # fmt: skip
     if a.model_only:  # the share of frames the online judge tracked twice, with and without
         cost = {
@@ -631,7 +658,7 @@ def main() -> int:
         "variety": a.variety, "motions": a.motions, "online_only": a.online_only,
         "offline_only": a.offline_only, "refit_only": a.refit_only, "facing_only": a.facing_only,
         "keep": a.keep if a.facing_only else None, "neck_only": a.neck_only,
-        "band_only": a.band_only, "model_only": a.model_only,
+        "band_only": a.band_only, "model_only": a.model_only, "far_only": a.far_only,
         "defaults_only": a.defaults_only, "targets": a.targets,
         "machine": machine_summary(), "wall_s": time.perf_counter() - t0,
     }  # fmt: skip

@@ -50,6 +50,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "all_landmarks_hypothesis": False,
     "occlusion_gate": False,
     "depth_confidence": 0.0,
+    "depth_confidence_far": 0.0,
     "reinit_keep_facing": 0,
     "lift_band": 0.0,
 }
@@ -121,7 +122,6 @@ class TrackerConfig(eqx.Module):
     benchmarks/README.md). Every lifting of the tracker uses it. Traced."""
     confidence_threshold: float = 0.4
     """A keypoint is detected (f_i) when its confidence exceeds this. Traced."""
-    depth_confidence_far: bool = eqx.field(default=False, static=True)
     depth_confidence: float = 0.0
     """Off by default (0, the paper: every detected keypoint with valid depth is a 3D
     landmark). Above 0, a detected keypoint's depth is a 3D landmark of the per-frame step
@@ -136,6 +136,15 @@ class TrackerConfig(eqx.Module):
     (re-)initialisation and the body-shape estimates still lift every detected keypoint.
     At 0.8 it measured 1.1 mm worse on average over 40 tuning runs, with 15 % fewer
     swapped-limb frames (benchmarks/README.md, "What was tried"); not in the paper. Traced."""
+    depth_confidence_far: float = 0.0
+    """Off by default (0). Above 0, ``depth_confidence``'s rule with this ratio for the
+    elbow, wrist, knee and ankle of the side the previous output turns away from the camera
+    (more than 30 degrees from facing it; :func:`posetrack._visibility.far_side`); the
+    larger of the two ratios applies there. In a side view the far arm hangs behind the torso
+    and its depth is the near side's surface, 20-45 cm too close (wide walk_across tuning
+    clips), while a pose facing the camera keeps every landmark as the paper has it.
+    Measured in benchmarks/README.md ("A side view hides the far arm"). Not in the paper.
+    Traced."""
     surface_offset: bool = eqx.field(default=True, static=True)
     """Push lifted landmarks back by the local body radius (surface -> joint centre). Not in
     the paper; see README "Beyond the paper"."""
@@ -293,6 +302,9 @@ class TrackerConfig(eqx.Module):
         v = self.depth_confidence
         if isinstance(v, float) and not 0.0 <= v <= 1.0:
             raise ValueError(f"TrackerConfig.depth_confidence must be in [0, 1], got {v}")
+        v = self.depth_confidence_far
+        if isinstance(v, float) and not 0.0 <= v <= 1.0:
+            raise ValueError(f"TrackerConfig.depth_confidence_far must be in [0, 1], got {v}")
         for name in _POSITIVE:
             v = getattr(self, name)
             if isinstance(v, float) and not (math.isfinite(v) and v > 0):

@@ -150,12 +150,11 @@ def lift_keypoints(
     )
 
 
-def confident_depth(
-    landmarks: Landmarks, ratio: Float[Array, ""] | float, where: Bool[Array, " kpt"] | None = None
-) -> Landmarks:
+def confident_depth(landmarks: Landmarks, ratio: Float[Array, "*kpt"] | float) -> Landmarks:
     """``landmarks`` with F_i cleared (and O_i zeroed) where the keypoint's confidence is below
     ``ratio`` times the median confidence of the frame's detected body keypoints (neck to
-    ankles); the 2D detections stay (f_i). Jittable; ``ratio`` may be traced.
+    ankles); the 2D detections stay (f_i). Jittable; ``ratio`` may be traced, and may be
+    one per keypoint.
 
     A detector reports keypoints it infers behind an occluder at a lower confidence than the
     ones it sees, and the depth on such a keypoint's pixel belongs to the occluder. The median
@@ -166,10 +165,7 @@ def confident_depth(
     body = np.asarray(BODY_JOINTS)
     median = jnp.nanmedian(jnp.where(landmarks.detected[body], c[body], jnp.nan))
     median = jnp.where(jnp.isnan(median), 0.0, median)
-    low = c < ratio * median
-    if where is not None:
-        low = low & where
-    has_depth = landmarks.has_depth & ~low
+    has_depth = landmarks.has_depth & (c >= ratio * median)
     return Landmarks(
         keypoints2d=landmarks.keypoints2d,
         confidence=landmarks.confidence,

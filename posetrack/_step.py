@@ -30,7 +30,7 @@ from ._observe import Landmarks, confident_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
-from ._visibility import self_occluded
+from ._visibility import far_side, self_occluded
 
 #: Frame status codes: what a frame's step (and the host's track-loss logic around it) made of
 #: the frame. :mod:`posetrack._tracker` (host) and :mod:`posetrack._chunk` (inside a scan) share
@@ -198,21 +198,6 @@ def landmark_agreement(
     return jnp.where(n > 0, jnp.sum(near & plausible) / jnp.maximum(n, 1), 1.0)
 
 
-#: Limb keypoints (elbow, wrist, knee, ankle) of the right and the left side.
-_LIMBS_R, _LIMBS_L = (3, 4, 9, 10), (6, 7, 12, 13)
-FAR_SIDE_SIN = 0.5
-
-
-def far_side(k: Float[Array, "kpt 3"]) -> Bool[Array, " kpt"]:
-    """The limb keypoints of the side turned away from the camera in a side view."""
-    dz = 0.5 * (k[2, 2] - k[5, 2] + k[8, 2] - k[11, 2])
-    width = 0.5 * (jnp.linalg.norm(k[2] - k[5]) + jnp.linalg.norm(k[8] - k[11]))
-    s = dz / jnp.maximum(width, 1e-3)
-    mask = jnp.zeros(k.shape[0], bool)
-    mask = mask.at[jnp.array(_LIMBS_R)].set(s > FAR_SIDE_SIN)
-    return mask.at[jnp.array(_LIMBS_L)].set(s < -FAR_SIDE_SIN)
-
-
 def tracker_step(
     config: TrackerConfig,
     shape: body.BodyShape,
@@ -243,13 +228,12 @@ def tracker_step(
     lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence)
     # With TrackerConfig.depth_confidence > 0 (off by default), keypoints detected far less
     # confidently than the rest of the body (inferred behind an occluder: their depth is the
-    # occluder's) are fitted in 2D only. At 0 the landmarks are unchanged.
-    if config.depth_confidence_far:
-        lm = confident_depth(
-            lm, config.depth_confidence, far_side(body.keypoints(shape, state.best))
-        )
-    else:
-        lm = confident_depth(lm, config.depth_confidence)
+    # occluder's) are fitted in 2D only; depth_confidence_far (off by default) does the same
+    # for the limbs of the side the previous output turns away from the camera. At 0 the
+    # landmarks are unchanged.
+    far = far_side(body.keypoints(shape, state.best))
+    ratio = jnp.maximum(config.depth_confidence, config.depth_confidence_far * far)
+    lm = confident_depth(lm, ratio)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
         # Every other hypothesis leaves out the 3D landmarks that the previous output says

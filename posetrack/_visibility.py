@@ -91,3 +91,27 @@ def self_occluded(
     in_front = seen < joint_z - margin
     explained = jnp.abs(seen - front[1]) < tolerance
     return landmarks.has_depth & hidden & in_front & explained
+
+
+#: Limb keypoints (elbow, wrist, knee, ankle) of the right and of the left side.
+LIMBS_RIGHT, LIMBS_LEFT = (3, 4, 9, 10), (6, 7, 12, 13)
+#: A pose is a side view when its right-to-left direction (shoulders and hips) points this
+#: far along the viewing axis: sin 30 degrees of turn away from facing the camera.
+SIDE_VIEW_SIN = 0.5
+
+
+def far_side(keypoints3d: Float[Array, "kpt 3"]) -> Bool[Array, " kpt"]:
+    """The elbow, wrist, knee and ankle of the side a pose turns away from the camera.
+
+    In a side view the far limbs hang behind the torso, and the depth on their keypoints'
+    pixels is the near side's surface. The turn is read from the torso: the right minus the
+    left shoulder's and hip's depth (camera z), over the shoulders' and hips' 3D distance;
+    above :data:`SIDE_VIEW_SIN` the right limbs are flagged, below its negative the left
+    ones; nothing in between (a person facing the camera, or away). Jittable.
+    """
+    k = keypoints3d
+    dz = 0.5 * (k[2, 2] - k[5, 2] + k[8, 2] - k[11, 2])
+    width = 0.5 * (jnp.linalg.norm(k[2] - k[5]) + jnp.linalg.norm(k[8] - k[11]))
+    turned = dz / jnp.maximum(width, 1e-3)
+    flags = jnp.zeros(k.shape[0], bool).at[jnp.array(LIMBS_RIGHT)].set(turned > SIDE_VIEW_SIN)
+    return flags.at[jnp.array(LIMBS_LEFT)].set(turned < -SIDE_VIEW_SIN)

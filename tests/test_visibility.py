@@ -12,7 +12,7 @@ from posetrack import _body as B
 from posetrack._depthobs import NO_FLOOR
 from posetrack._geometry import surface_offsets
 from posetrack._rotation import quat_multiply
-from posetrack._visibility import self_occluded
+from posetrack._visibility import far_side, self_occluded
 
 INTR = pt.Intrinsics.create(fx=280.0, fy=280.0, cx=159.5, cy=119.5, width=320, height=240)
 SHAPE = pt.BodyShape.default(jnp.float32)
@@ -200,6 +200,45 @@ def test_the_step_fits_an_unconfident_keypoint_in_2d_only(side, step):
     paper = _side_step(side, step, GATED.replace(depth_confidence=0.0), conf)
     assert bool(paper.landmarks.has_depth[far])
     assert np.asarray(paper.used3d)[0::2, far].sum() >= 3
+
+
+def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
+    p, kps, _, far, near = side
+    flags = np.asarray(jax.jit(far_side)(jnp.asarray(kps, jnp.float32)))
+    far_limbs = [3, 4, 9, 10] if far == R_WRIST else [6, 7, 12, 13]
+    assert flags[far_limbs].all()
+    assert flags.sum() == 4  # not the near limbs, the torso or the face
+    # Turned the other way (the side view mirrored in depth), the other side is the far one.
+    turned = kps.copy()
+    turned[:, 2] = 2 * kps[1, 2] - kps[:, 2]
+    other = np.asarray(far_side(jnp.asarray(turned, jnp.float32)))
+    assert other.sum() == 4
+    assert other[[3, 4, 9, 10]].all() == (far != R_WRIST)
+    assert other[[6, 7, 12, 13]].all() == (far == R_WRIST)
+    # Facing the camera no side is turned away.
+    assert not np.asarray(far_side(jnp.asarray(facing[1], jnp.float32))).any()
+
+
+def test_the_far_side_gate_spares_the_near_sides_unconfident_keypoint(side, step):
+    """``depth_confidence_far``: both wrists detected at 0.5 (the body at 0.9); the far one
+    (behind the torso in the previous output) loses its 3D landmark, the near one keeps it;
+    without the switch both lose it."""
+    _, _, _, far, near = side
+    conf = np.full(18, 0.9, np.float32)
+    conf[[far, near]] = 0.5
+    est = _side_step(side, step, GATED.replace(depth_confidence_far=0.8), conf)
+    has = np.asarray(est.landmarks.has_depth)
+    assert not has[far] and has[near]
+    assert not np.asarray(est.used3d)[:, far].any()
+    both = _side_step(side, step, GATED.replace(depth_confidence=0.8), conf)
+    assert not np.asarray(both.landmarks.has_depth)[[far, near]].any()
+
+
+def test_the_far_side_gate_is_validated():
+    assert pt.TrackerConfig().depth_confidence_far == 0.0  # off: the paper's lifting
+    for bad in (-0.1, 1.5, float("nan"), True):
+        with pytest.raises(ValueError, match="TrackerConfig.depth_confidence_far"):
+            pt.TrackerConfig(depth_confidence_far=bad)
 
 
 def test_the_step_leaves_hidden_landmarks_to_every_other_hypothesis(side, step):
