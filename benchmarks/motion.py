@@ -157,7 +157,7 @@ TARGET_ROWS = (
 )  # fmt: skip
 #: ``--far-only R``: LVM and both modes with the confidence gate on the far side's limbs in a
 #: side view (``TrackerConfig(depth_confidence_far=R)``; a candidate
-#: of 2026-11-29). The defaults' rows are not run again: the same clips' rows of ``--targets``
+#: of 2026-11-29, stopped by two report sets: opt-in, results/motion_far_*.json). The defaults' rows are not run again: the same clips' rows of ``--targets``
 #: (and the offline ones of the smoother's pose weight) are read beside them.
 FAR = ", far side gated"
 FAR_ROWS = ("LVM", f"MHT_h offline{FAR}", f"MHT_h online L={LAG}{FAR}")
