@@ -96,16 +96,27 @@ _ONLINE_SIDES = {
 }
 
 
+#: Variants of one numeric setting: name prefix -> (``Tracker`` keyword, settings class,
+#: field); the number follows the prefix.
+_NUMBERED = {
+    "oacc": ("motion", pt.SmoothSettings, "online_accel_std"),
+    "orobust": ("motion", pt.SmoothSettings, "online_robust"),
+    "conf": ("config", pt.TrackerConfig, "depth_confidence"),
+    "far": ("config", pt.TrackerConfig, "depth_confidence_far"),
+    "band": ("config", pt.TrackerConfig, "lift_band"),
+}
+
+
 def settings(variant: str) -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
     if variant == "default":
         return {}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
-    for prefix, field in (("oacc", "online_accel_std"), ("orobust", "online_robust")):
+    for prefix, (kwarg, make, field) in _NUMBERED.items():
         if variant.startswith(prefix):
             try:
-                return {"motion": pt.SmoothSettings(**{field: float(variant[len(prefix) :])})}
+                return {kwarg: make(**{field: float(variant[len(prefix) :])})}
             except ValueError as e:
                 raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     for prefix, (field, kind) in _ONLINE_SIDES.items():
@@ -127,17 +138,6 @@ def settings(variant: str) -> dict:
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
-    for prefix, field in (("conf", "depth_confidence"), ("far", "depth_confidence_far")):
-        if variant.startswith(prefix):
-            try:
-                return {"config": pt.TrackerConfig(**{field: float(variant[len(prefix) :])})}
-            except ValueError as e:
-                raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    if variant.startswith("band"):
-        try:
-            return {"config": pt.TrackerConfig(lift_band=float(variant[4:]))}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("sides:"):
         names, with_limbs = variant[6:].removesuffix("/with-limbs"), variant.endswith("/with-limbs")
         groups = tuple(names.split("+"))

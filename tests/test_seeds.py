@@ -97,6 +97,17 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert [c[2] for c in real] == [decide.REAL[100 % n], decide.REAL[107 % n]]
     with pytest.raises(SystemExit, match="not tuning seeds"):
         decide.clips([0, 100])
+    # --side-seeds: wide walk_across clips (a side view) added, of tuning seeds only.
+    side = decide.clips(None, [103, 111])
+    assert len(side) == 22 and side[-2:] == [
+        ("walk_across", 103, "walk_across", "wide"),
+        ("walk_across", 111, "walk_across", "wide"),
+    ]
+    with pytest.raises(SystemExit, match="--side-seeds.*not tuning seeds"):
+        decide.clips(None, [6])
+    far = decide.settings("far1.0")["config"]
+    assert far.depth_confidence_far == 1.0 and far.depth_confidence == 0.0
+    assert decide.settings("band0.5")["config"].lift_band == 0.5
 
 
 def test_the_wide_factor_runs_put_back_one_factor_each(seeds):
