@@ -52,32 +52,30 @@ import posetrack as pt
 
 
 def clips(
-    real_seeds: list[int] | None = None, side_seeds: list[int] | None = None
+    real_seeds: list[int] | None = None, side_seeds: list[int] | None = None, base: bool = True
 ) -> list[tuple[str, int, str, str]]:
     """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions), or
     with ``real_seeds`` the wide real motion clips of those tuning seeds
     (:func:`tune.real_motion`, as ``losses.py --kind real``); ``side_seeds`` adds wide
     procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
-    room and turning round, a motion the 40 clips do not have)."""
-    out = (
-        []
-        if side_seeds is None
-        else [("walk_across", s, "walk_across", "wide") for s in side_seeds]
-    )
+    room and turning round, a motion the 40 clips do not have); ``base=False``: those only."""
+    out = _base_clips(real_seeds) if base else []
     if side_seeds is not None:
-        try:
-            check_seeds(side_seeds)
-        except ValueError as e:
-            raise SystemExit(f"error: --side-seeds: {e}") from None
-    return _base_clips(real_seeds) + out
+        _check(side_seeds, "--side-seeds")
+        out += [("walk_across", s, "walk_across", "wide") for s in side_seeds]
+    return out
+
+
+def _check(seeds: list[int], option: str) -> None:
+    try:
+        check_seeds(seeds)
+    except ValueError as e:
+        raise SystemExit(f"error: {option}: {e}") from None
 
 
 def _base_clips(real_seeds: list[int] | None) -> list[tuple[str, int, str, str]]:
     if real_seeds is not None:
-        try:
-            check_seeds(real_seeds)
-        except ValueError as e:
-            raise SystemExit(f"error: --real-seeds: {e}") from None
+        _check(real_seeds, "--real-seeds")
         return [("wide real", s, real_motion(s), "wide") for s in real_seeds]
     out = [("wide real", s, REAL[i % len(REAL)], "wide") for i, s in enumerate(range(150, 158))]
     out += [("wide procedural", s, PROCEDURAL[i], "wide") for i, s in enumerate(range(144, 150))]
@@ -170,10 +168,11 @@ def main() -> int:
         "--no-base", action="store_true", help="only the --side-seeds clips, not the 40"
     )
     a = ap.parse_args()
+    if a.no_base and a.side_seeds is None:
+        ap.error("--no-base leaves only the --side-seeds clips: give --side-seeds")
     side = None if a.side_seeds is None else parse_seeds(a.side_seeds)
-    chosen = clips(None if a.real_seeds is None else parse_seeds(a.real_seeds), side)
-    if a.no_base:
-        chosen = [c for c in chosen if c[0] == "walk_across"]
+    real = None if a.real_seeds is None else parse_seeds(a.real_seeds)
+    chosen = clips(real, side, base=not a.no_base)
     variants = {v: settings(v) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]

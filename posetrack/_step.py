@@ -231,7 +231,7 @@ def tracker_step(
     # occluder's) are fitted in 2D only; depth_confidence_far (off by default) does the same
     # for the limbs of the side the previous output turns away from the camera. At 0 the
     # landmarks are unchanged.
-    far = far_side(body.keypoints(shape, state.best))
+    far = far_side(state.best)
     ratio = jnp.maximum(config.depth_confidence, config.depth_confidence_far * far)
     lm = confident_depth(lm, ratio)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)

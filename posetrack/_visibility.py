@@ -35,9 +35,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from . import _body as body
+from ._body import NUM_KEYPOINTS
 from ._camera import Intrinsics, backproject
+from ._metrics import LIMB_PAIRS
 from ._observe import Landmarks
 from ._render import Capsules, capsule_fields, capsule_params
+from ._rotation import quat_normalize, quat_to_matrix
 
 
 def self_occluded(
@@ -93,25 +96,23 @@ def self_occluded(
     return landmarks.has_depth & hidden & in_front & explained
 
 
-#: Limb keypoints (elbow, wrist, knee, ankle) of the right and of the left side.
-LIMBS_RIGHT, LIMBS_LEFT = (3, 4, 9, 10), (6, 7, 12, 13)
 #: A pose is a side view when its right-to-left direction (shoulders and hips) points this
 #: far along the viewing axis: sin 30 degrees of turn away from facing the camera.
 SIDE_VIEW_SIN = 0.5
 
 
-def far_side(keypoints3d: Float[Array, "kpt 3"]) -> Bool[Array, " kpt"]:
-    """The elbow, wrist, knee and ankle of the side a pose turns away from the camera.
+def far_side(params: Float[Array, 43]) -> Bool[Array, " kpt"]:
+    """The elbow, wrist, knee and ankle (``LIMB_PAIRS``) of the side a pose turns away from
+    the camera.
 
     In a side view the far limbs hang behind the torso, and the depth on their keypoints'
-    pixels is the near side's surface. The turn is read from the torso: the right minus the
-    left shoulder's and hip's depth (camera z), over the shoulders' and hips' 3D distance;
-    above :data:`SIDE_VIEW_SIN` the right limbs are flagged, below its negative the left
-    ones; nothing in between (a person facing the camera, or away). Jittable.
+    pixels is the near side's surface. The model's torso is rigid, so the shoulders' and
+    hips' right-to-left direction is the root's x axis: its camera-z component is the depth
+    the right side lies behind the left per metre of width (the sine of the turn). Above
+    :data:`SIDE_VIEW_SIN` the right limbs are flagged, below its negative the left ones;
+    nothing in between (a person facing the camera, or away). Jittable.
     """
-    k = keypoints3d
-    dz = 0.5 * (k[2, 2] - k[5, 2] + k[8, 2] - k[11, 2])
-    width = 0.5 * (jnp.linalg.norm(k[2] - k[5]) + jnp.linalg.norm(k[8] - k[11]))
-    turned = dz / jnp.maximum(width, 1e-3)
-    flags = jnp.zeros(k.shape[0], bool).at[jnp.array(LIMBS_RIGHT)].set(turned > SIDE_VIEW_SIN)
-    return flags.at[jnp.array(LIMBS_LEFT)].set(turned < -SIDE_VIEW_SIN)
+    turned = -quat_to_matrix(quat_normalize(params[3:7]))[2, 0]
+    right, left = (jnp.asarray(side) for side in zip(*LIMB_PAIRS, strict=True))
+    flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > SIDE_VIEW_SIN)
+    return flags.at[left].set(turned < -SIDE_VIEW_SIN)

@@ -204,19 +204,22 @@ def test_the_step_fits_an_unconfident_keypoint_in_2d_only(side, step):
 
 def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
     p, kps, _, far, near = side
-    flags = np.asarray(jax.jit(far_side)(jnp.asarray(kps, jnp.float32)))
+    flags = np.asarray(jax.jit(far_side)(p))
     far_limbs = [3, 4, 9, 10] if far == R_WRIST else [6, 7, 12, 13]
     assert flags[far_limbs].all()
     assert flags.sum() == 4  # not the near limbs, the torso or the face
-    # Turned the other way (the side view mirrored in depth), the other side is the far one.
-    turned = kps.copy()
-    turned[:, 2] = 2 * kps[1, 2] - kps[:, 2]
-    other = np.asarray(far_side(jnp.asarray(turned, jnp.float32)))
+    # Turned 90 degrees the other way about the vertical, the other side is the far one.
+    half = -np.pi / 4
+    yaw = jnp.asarray([np.cos(half), 0.0, np.sin(half), 0.0], jnp.float32)
+    front = facing[0]
+    other = np.asarray(
+        far_side(B.normalize_params(front.at[3:7].set(quat_multiply(yaw, front[3:7]))))
+    )
     assert other.sum() == 4
     assert other[[3, 4, 9, 10]].all() == (far != R_WRIST)
     assert other[[6, 7, 12, 13]].all() == (far == R_WRIST)
     # Facing the camera no side is turned away.
-    assert not np.asarray(far_side(jnp.asarray(facing[1], jnp.float32))).any()
+    assert not np.asarray(far_side(front)).any()
 
 
 def test_the_far_side_gate_spares_the_near_sides_unconfident_keypoint(side, step):
