@@ -17,6 +17,8 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
     python benchmarks/decide.py OUT.jsonl --variants sides:arms+legs,sides:arms+legs+torso
     python benchmarks/decide.py OUT.jsonl --part 0 --parts 2 ...  # two processes
     python benchmarks/decide.py OUT.jsonl --real-seeds 100-123 ...  # other tuning clips
+    python benchmarks/decide.py OUT.jsonl --real-seeds 176,178 --standard-seeds 168-170 \
+        --procedural-seeds 171-173 --side-seeds 196,197 --tracker-seeds 0,1,2 ...
     python benchmarks/decide.py OUT.jsonl --mode per-frame --variants default,alllm,lvm
 
 Variants: ``default`` (every setting the mode's default), ``inbatch``
@@ -52,14 +54,35 @@ import posetrack as pt
 
 
 def clips(
-    real_seeds: list[int] | None = None, side_seeds: list[int] | None = None, base: bool = True
+    real_seeds: list[int] | None = None,
+    side_seeds: list[int] | None = None,
+    base: bool = True,
+    procedural_seeds: list[int] | None = None,
+    standard_seeds: list[int] | None = None,
 ) -> list[tuple[str, int, str, str]]:
-    """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions), or
-    with ``real_seeds`` the wide real motion clips of those tuning seeds
-    (:func:`tune.real_motion`, as ``losses.py --kind real``); ``side_seeds`` adds wide
+    """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions).
+
+    Given any of ``real_seeds`` (wide real motion clips, :func:`tune.real_motion`, as
+    ``losses.py --kind real``), ``procedural_seeds`` (wide procedural clips) or
+    ``standard_seeds`` (standard procedural clips; both of motion ``PROCEDURAL[seed % 6]``),
+    the clips of those tuning seeds instead, in that order; ``side_seeds`` adds wide
     procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
     room and turning round, a motion the 40 clips do not have); ``base=False``: those only."""
-    out = _base_clips(real_seeds) if base else []
+    own = {"--real-seeds": real_seeds, "--procedural-seeds": procedural_seeds}
+    own["--standard-seeds"] = standard_seeds
+    for option, seeds in own.items():
+        if seeds is not None:
+            _check(seeds, option)
+    out = []
+    if base and all(seeds is None for seeds in own.values()):
+        out = _base_clips()
+    elif base:
+        out = [("wide real", s, real_motion(s), "wide") for s in real_seeds or ()]
+        for group, variety, seeds in (
+            ("wide procedural", "wide", procedural_seeds),
+            ("standard", "standard", standard_seeds),
+        ):
+            out += [(group, s, PROCEDURAL[s % len(PROCEDURAL)], variety) for s in seeds or ()]
     if side_seeds is not None:
         _check(side_seeds, "--side-seeds")
         out += [("walk_across", s, "walk_across", "wide") for s in side_seeds]
@@ -73,10 +96,7 @@ def _check(seeds: list[int], option: str) -> None:
         raise SystemExit(f"error: {option}: {e}") from None
 
 
-def _base_clips(real_seeds: list[int] | None) -> list[tuple[str, int, str, str]]:
-    if real_seeds is not None:
-        _check(real_seeds, "--real-seeds")
-        return [("wide real", s, real_motion(s), "wide") for s in real_seeds]
+def _base_clips() -> list[tuple[str, int, str, str]]:
     out = [("wide real", s, REAL[i % len(REAL)], "wide") for i, s in enumerate(range(150, 158))]
     out += [("wide procedural", s, PROCEDURAL[i], "wide") for i, s in enumerate(range(144, 150))]
     out += [("standard", s, PROCEDURAL[i], "standard") for i, s in enumerate(range(136, 142))]
@@ -162,6 +182,10 @@ def main() -> int:
         "--real-seeds", help="instead of the 40 clips: wide real motion clips, e.g. 100-123"
     )
     ap.add_argument(
+        "--procedural-seeds", help="instead of the 40 clips: wide procedural clips, e.g. 171-173"
+    )
+    ap.add_argument("--standard-seeds", help="instead of the 40 clips: standard procedural clips")
+    ap.add_argument(
         "--side-seeds", help="add wide walk_across clips (a side view) of these tuning seeds"
     )
     ap.add_argument(
@@ -170,9 +194,11 @@ def main() -> int:
     a = ap.parse_args()
     if a.no_base and a.side_seeds is None:
         ap.error("--no-base leaves only the --side-seeds clips: give --side-seeds")
-    side = None if a.side_seeds is None else parse_seeds(a.side_seeds)
-    real = None if a.real_seeds is None else parse_seeds(a.real_seeds)
-    chosen = clips(real, side, base=not a.no_base)
+    side, real, procedural, standard = (
+        None if text is None else parse_seeds(text)
+        for text in (a.side_seeds, a.real_seeds, a.procedural_seeds, a.standard_seeds)
+    )
+    chosen = clips(real, side, not a.no_base, procedural, standard)
     variants = {v: settings(v) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]

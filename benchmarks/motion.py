@@ -156,13 +156,30 @@ TARGET_ROWS = (
     f"MHT_h online L={LAG}",
 )  # fmt: skip
 #: ``--far-only R``: LVM and both modes with the confidence gate on the far side's limbs in a
-#: side view (``TrackerConfig(depth_confidence_far=R)``; a candidate
-#: of 2026-11-29, stopped by two report sets: opt-in, results/motion_far_*.json). The defaults' rows are not run again: the same clips' rows of ``--targets``
-#: (and the offline ones of the smoother's pose weight) are read beside them.
+#: side view (``TrackerConfig(depth_confidence_far=R)``; a candidate of 2026-11-29, stopped
+#: by two report sets: opt-in, results/motion_far_*.json). The defaults' rows are not run
+#: again: the same clips' rows of ``--targets`` (and the offline ones of the smoother's pose
+#: weight) are read beside them.
 FAR = ", far side gated"
 FAR_ROWS = ("LVM", f"MHT_h offline{FAR}", f"MHT_h online L={LAG}{FAR}")
 #: Suffix of a row that pairs with the row named without it (``D_pair_mm``).
 IN_BATCH = ", refit in the batch"
+
+
+def report_clips(clips: int, start: int, motions: str) -> list[tuple[int, str]]:
+    """``(seed, motion)`` of a report set's clips: ``REPORT_SEEDS[start:start + clips]``, the
+    motions cycling through :data:`MOTIONS` (``motions="procedural"``) or accuracy.py's real
+    clips present on this machine (``"real"``; ``ValueError`` where none is)."""
+    cycle = MOTIONS
+    if motions == "real":
+        available = set(pt.synth.list_real_motions())
+        cycle = tuple(m for m in REAL if m in available)
+        if not cycle:
+            raise ValueError(
+                "--motions real: none of accuracy.py's real clips is present (looked in "
+                "$POSETRACK_DATA or ../shared/data; see README, Synthetic data)"
+            )
+    return [(REPORT_SEEDS[start + i], cycle[(start + i) % len(cycle)]) for i in range(clips)]
 
 
 def run_clip(
@@ -466,23 +483,14 @@ def main() -> int:
         else REFIT_ONLINE_ROWS if a.refit_only and a.online_only else ONLINE_ROWS if a.online_only
         else OFFLINE_ROWS if a.offline_only else REFIT_ROWS if a.refit_only else ROWS
     )  # fmt: skip
-    clips = 3 if a.quick else a.clips
-    motions = MOTIONS
-    if a.motions == "real":
-        available = set(pt.synth.list_real_motions())
-        motions = tuple(m for m in REAL if m in available)
-        if not motions:
-            print(
-                "error: --motions real: none of accuracy.py's real clips is present (looked in "
-                "$POSETRACK_DATA or ../shared/data; see README, Synthetic data)",
-                file=sys.stderr,
-            )
-            return 2
+    try:
+        chosen = report_clips(3 if a.quick else a.clips, a.start, a.motions)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     per_clip = []
     t0 = time.perf_counter()
-    for i in range(clips):
-        seed = REPORT_SEEDS[a.start + i]
-        motion = motions[(a.start + i) % len(motions)]
+    for seed, motion in chosen:
         for occ in (0, 2):
             r = run_clip(
                 seed, motion, occ, a.frames, a.variety, a.online_only, a.offline_only,

@@ -4,6 +4,7 @@ tuning clips are not the reported ones. No tracking: these run in seconds."""
 
 import dataclasses
 import importlib.util
+import json
 import sys
 from pathlib import Path
 
@@ -105,6 +106,19 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     ]
     with pytest.raises(SystemExit, match="--side-seeds.*not tuning seeds"):
         decide.clips(None, [6])
+    # --real-seeds, --procedural-seeds, --standard-seeds: those clips instead of the 40.
+    mixed = decide.clips([176], [196], True, [173], [168])
+    assert mixed == [
+        ("wide real", 176, decide.real_motion(176), "wide"),
+        ("wide procedural", 173, decide.PROCEDURAL[173 % 6], "wide"),
+        ("standard", 168, decide.PROCEDURAL[168 % 6], "standard"),
+        ("walk_across", 196, "walk_across", "wide"),
+    ]
+    assert decide.clips(None, [196], False, [173]) == mixed[-1:]
+    for option, args in (("--procedural-seeds", (None, None, True, [50])),
+                         ("--standard-seeds", (None, None, True, None, [99]))):  # fmt: skip
+        with pytest.raises(SystemExit, match=f"{option}.*not tuning seeds"):
+            decide.clips(*args)
     far = decide.settings("far1.0")["config"]
     assert far.depth_confidence_far == 1.0 and far.depth_confidence == 0.0
     assert decide.settings("band0.5")["config"].lift_band == 0.5
@@ -189,3 +203,98 @@ def test_the_loss_diagnosis_pairs_frames_and_keeps_to_its_seed_ranges(seeds, mon
         monkeypatch.setattr(sys, "argv", ["losses.py", *argv, "--out", "/nonexistent/x"])
         with pytest.raises(SystemExit):
             ls.main()
+
+
+def _record(group, seed, occ, tseed, base_d, cand_d, swaps=(0, 0)):
+    measures = {"cov": 1.0, "accel": 3.0}
+    return {
+        "group": group, "seed": seed, "motion": "walk", "occ": occ, "tseed": tseed,
+        "default": {"D": base_d, "swaps": swaps[0], **measures},
+        "far1.0": {"D": cand_d, "swaps": swaps[1], **measures},
+    }  # fmt: skip
+
+
+def _write(path, records):
+    path.write_text("".join(json.dumps(r) + "\n" for r in records))
+    return str(path)
+
+
+def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
+    paired = load("paired")
+    records = [
+        # run A: seed 0 gains 30 mm, seed 1 loses 10 -> change -10; baseline spread sd(100, 60)
+        _record("standard", 168, 0, 0, 100.0, 70.0, (2, 1)),
+        _record("standard", 168, 0, 1, 60.0, 70.0, (0, 3)),
+        # run B: no change on either seed
+        _record("standard", 169, 0, 0, 40.0, 40.0),
+        _record("standard", 169, 0, 1, 40.0, 40.0),
+        # run C (occluded): +2 on both seeds
+        _record("standard", 168, 2, 0, 50.0, 52.0),
+        _record("standard", 168, 2, 1, 54.0, 56.0),
+    ]
+    runs = paired.run_changes(
+        paired.load([_write(tmp_path / "r.jsonl", records)]), "default", "far1.0"
+    )
+    by = {(r["seed"], r["occ"]): r for r in runs}
+    assert by[168, 0]["change"] == pytest.approx(-10.0)
+    assert by[168, 0]["base_D"] == pytest.approx(80.0) and by[168, 0]["candidate_D"] == 70.0
+    assert by[168, 0]["spread"] == pytest.approx(np.std([100.0, 60.0], ddof=1))
+    assert (by[168, 0]["base_swaps"], by[168, 0]["candidate_swaps"]) == (2, 4)
+    rows = dict(paired.table(runs))
+    assert list(rows) == ["standard, clean", "standard, occlusion 2", "all"]
+    clean = rows["standard, clean"]
+    assert clean["change"] == pytest.approx(-5.0) and clean["runs"] == 2
+    assert clean["se"] == pytest.approx(np.std([-10.0, 0.0], ddof=1) / np.sqrt(2))
+    assert clean["t"] == pytest.approx(-5.0 / clean["se"])
+    assert (clean["better"], clean["worse"]) == (1, 0)
+    every = rows["all"]
+    assert every["change"] == pytest.approx((-10.0 + 0.0 + 2.0) / 3)
+    assert (every["base_swaps"], every["candidate_swaps"]) == (2, 4)
+
+
+def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
+    paired = load("paired")
+    twice = _write(tmp_path / "twice.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)] * 2)
+    with pytest.raises(SystemExit, match=r"twice.jsonl:2: .*tracker seed 0 again.*twice.jsonl:1"):
+        paired.load([twice])
+    short = [_record("standard", 168, 0, t, 1.0, 2.0) for t in (0, 1)]
+    short.append(_record("standard", 169, 0, 0, 1.0, 2.0))
+    with pytest.raises(SystemExit, match=r"incomplete \(tracker seeds \[0, 1\].*169 occ 0: \[0\]"):
+        paired.run_changes(short, "default", "far1.0")
+    with pytest.raises(SystemExit, match="has no variant 'far0.5'"):
+        paired.run_changes(short, "default", "far0.5")
+
+
+def test_the_report_stage_reads_stored_seed_zero_rows_of_the_same_clips(tmp_path):
+    report = load("report_pairs")
+    clips = report.report_clips(2, 0, "procedural")
+    assert clips == [(0, "walk"), (1, "box")]
+
+    def row(d):
+        return {"D_mm": d, "coverage": 1.0, "swap_frames": 3, "accel_mm": 4.0}
+
+    stored = [
+        {"seed": s, "motion": m, "occlusion": o, "rows": {"MHT_h offline": row(10.0 * s + o)}}
+        for s, m in clips
+        for o in (0, 2)
+    ]
+    (tmp_path / "m.json").write_text(json.dumps({"clips": stored}))
+    weight = [{"seed": c["seed"], "motion": c["motion"], "occlusion": c["occlusion"],
+               "cand": row(1.0)} for c in stored]  # fmt: skip
+    (tmp_path / "w.json").write_text(json.dumps({"clips": weight}))
+    recs = report.merge(
+        report.stored_records(f"default={tmp_path / 'w.json'}:cand", clips, "report standard")
+        + report.stored_records(
+            f"far1.0={tmp_path / 'm.json'}:MHT_h offline", clips, "report standard"
+        )
+    )
+    assert len(recs) == 4 and {r["tseed"] for r in recs} == {0}
+    box = next(r for r in recs if r["seed"] == 1 and r["occ"] == 2)
+    assert box["far1.0"]["D"] == 12.0 and box["default"]["D"] == 1.0
+    assert box["far1.0"]["swaps"] == 3 and box["group"] == "report standard"
+    with pytest.raises(SystemExit, match=r"m.json: no row 'MHT_h online L=3' \(it has"):
+        report.stored_records(f"x={tmp_path / 'm.json'}:MHT_h online L=3", clips, "g")
+    with pytest.raises(SystemExit, match=r"m.json: its clips .* are not the set's"):
+        report.stored_records(f"x={tmp_path / 'm.json'}:MHT_h offline", clips[::-1], "g")
+    with pytest.raises(SystemExit, match="expected VARIANT=FILE:ROW"):
+        report.stored_records(str(tmp_path / "m.json"), clips, "g")

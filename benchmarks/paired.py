@@ -1,0 +1,157 @@
+"""Paired change of one tracker variant against another, over the runs of ``decide.py``.
+
+A run is one clip at one occlusion level (``group, seed, motion, occ``); ``decide.py`` tracks
+it with each tracker seed (``--tracker-seeds``: the hypotheses' random landmark subsets) and
+every variant. The change of a run is the candidate's D minus the baseline's, averaged over
+the tracker seeds the run has (the same seeds for both, so the pair shares every clip and
+seed); the table gives, per group and occlusion and over all runs, the mean change, its
+standard deviation and standard error over the runs, ``t`` = mean / standard error, the runs
+better and worse by more than 5 mm, and swapped-limb frames summed. ``spread`` is the
+baseline's own standard deviation of D across tracker seeds, averaged over the runs: what a
+decision on one tracker seed would have read as change.
+
+Why (benchmarks/README.md, "A side view hides the far arm"): on a clip whose track comes
+apart somewhere, the tracker seed alone moves D by 30-80 mm, so a mean change decided on one
+seed is largely decided by which clips diverge under that seed.
+
+    python benchmarks/paired.py RUNS.jsonl [MORE.jsonl ...] --candidate far1.0 [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+#: A run is better or worse when its change exceeds this (mm), as in decide's earlier tables.
+CLEAR_MM = 5.0
+
+
+def load(paths: list[str]) -> list[dict]:
+    """The records of ``decide.py`` JSON-lines files; a record seen twice (a clip, occlusion
+    and tracker seed appended by two runs) is an error naming the file and line."""
+    out, seen = [], {}
+    for path in paths:
+        with open(path) as f:
+            for n, line in enumerate(f, 1):
+                if not line.strip():
+                    continue
+                try:
+                    rec = json.loads(line)
+                    key = (rec["group"], rec["seed"], rec["motion"], rec["occ"], rec["tseed"])
+                except (ValueError, KeyError) as e:
+                    raise SystemExit(f"error: {path}:{n}: not a decide.py record ({e})") from None
+                if key in seen:
+                    raise SystemExit(
+                        f"error: {path}:{n}: clip {key[:4]} tracker seed {key[4]} again "
+                        f"(first at {seen[key]}): one record per clip and seed"
+                    )
+                seen[key] = f"{path}:{n}"
+                out.append(rec)
+    return out
+
+
+def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
+    """One entry per run: its group, occlusion, tracker seeds, both variants' D averaged over
+    them, the change and the baseline's spread (standard deviation over seeds; 0 with one).
+    Every run must have both variants and the same tracker seeds as the others."""
+    runs = defaultdict(dict)
+    for rec in records:
+        for name in (base, candidate):
+            if name not in rec:
+                raise SystemExit(
+                    f"error: clip {rec['group']} {rec['seed']} occ {rec['occ']} tracker seed "
+                    f"{rec['tseed']} has no variant {name!r} (it has "
+                    f"{sorted(k for k, v in rec.items() if isinstance(v, dict))})"
+                )
+        runs[(rec["group"], rec["seed"], rec["motion"], rec["occ"])][rec["tseed"]] = rec
+    if not runs:
+        raise SystemExit("error: no records")
+    seed_sets = {key: sorted(by_seed) for key, by_seed in runs.items()}
+    full = max(seed_sets.values(), key=len)
+    short = [f"{k[0]} {k[1]} occ {k[3]}: {s}" for k, s in seed_sets.items() if s != full]
+    if short:
+        raise SystemExit(
+            f"error: runs incomplete (tracker seeds {full} elsewhere): " + "; ".join(short[:5])
+        )
+    out = []
+    for (group, seed, motion, occ), by_seed in runs.items():
+        b = np.array([by_seed[t][base]["D"] for t in full])
+        c = np.array([by_seed[t][candidate]["D"] for t in full])
+        out.append({
+            "group": group, "seed": seed, "motion": motion, "occ": occ, "tseeds": full,
+            "base_D": float(b.mean()), "candidate_D": float(c.mean()),
+            "change": float((c - b).mean()), "spread": float(b.std(ddof=1)) if len(b) > 1 else 0.0,
+            "base_swaps": sum(by_seed[t][base]["swaps"] for t in full),
+            "candidate_swaps": sum(by_seed[t][candidate]["swaps"] for t in full),
+        })  # fmt: skip
+    return out
+
+
+def summary(runs: list[dict]) -> dict:
+    """Mean change over ``runs``, its standard deviation, standard error and t, the runs better
+    and worse by more than ``CLEAR_MM``, swapped-limb frames summed, the mean spread."""
+    change = np.array([r["change"] for r in runs])
+    n = len(change)
+    sd = float(change.std(ddof=1)) if n > 1 else math.nan
+    se = sd / math.sqrt(n) if n > 1 else math.nan
+    mean = float(change.mean())
+    return {
+        "runs": n, "base_D": float(np.mean([r["base_D"] for r in runs])),
+        "candidate_D": float(np.mean([r["candidate_D"] for r in runs])),
+        "change": mean, "sd": sd, "se": se,
+        "t": mean / se if se and se > 0 else (0.0 if mean == 0 else math.copysign(math.inf, mean)),
+        "better": int((change < -CLEAR_MM).sum()), "worse": int((change > CLEAR_MM).sum()),
+        "base_swaps": sum(r["base_swaps"] for r in runs),
+        "candidate_swaps": sum(r["candidate_swaps"] for r in runs),
+        "spread": float(np.mean([r["spread"] for r in runs])),
+    }  # fmt: skip
+
+
+def table(runs: list[dict]) -> list[tuple[str, dict]]:
+    """``(label, summary)`` per group and occlusion (in the runs' order), then over all."""
+    rows = {}
+    for r in runs:
+        occ = "clean" if r["occ"] == 0 else f"occlusion {r['occ']}"
+        rows.setdefault(f"{r['group']}, {occ}", []).append(r)
+    return [(label, summary(rs)) for label, rs in rows.items()] + [("all", summary(runs))]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("runs", nargs="+", help="decide.py JSON-lines files")
+    ap.add_argument("--base", default="default", help="the baseline variant (default: default)")
+    ap.add_argument("--candidate", required=True, help="the variant whose change is read")
+    ap.add_argument("--json", help="write the runs and the table here")
+    a = ap.parse_args()
+    for path in a.runs:
+        if not Path(path).is_file():
+            ap.error(f"{path}: no such file")
+    runs = run_changes(load(a.runs), a.base, a.candidate)
+    rows = table(runs)
+    print(
+        f"{a.candidate} - {a.base}, D mm (13 joints), each run averaged over tracker seeds "
+        f"{runs[0]['tseeds']}"
+    )
+    head = f"{'runs':<28} {'n':>3} {'base':>7} {'cand':>7} {'change':>7} {'se':>5} {'t':>6}"
+    print(head + f" {'better/worse':>12} {'swaps':>10} {'spread':>6}")
+    for label, s in rows:
+        print(
+            f"{label:<28} {s['runs']:>3} {s['base_D']:>7.2f} {s['candidate_D']:>7.2f} "
+            f"{s['change']:>+7.2f} {s['se']:>5.2f} {s['t']:>+6.2f} "
+            f"{s['better']:>5} / {s['worse']:<4} {s['base_swaps']:>4}->{s['candidate_swaps']:<4} "
+            f"{s['spread']:>6.1f}"
+        )
+    if a.json:
+        doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs}
+        doc["table"] = [{"label": label, **s} for label, s in rows]
+        Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
