@@ -32,9 +32,11 @@ CLEAR_MM = 5.0
 
 
 def load(paths: list[str]) -> list[dict]:
-    """The records of ``decide.py`` JSON-lines files; a record seen twice (a clip, occlusion
-    and tracker seed appended by two runs) is an error naming the file and line."""
-    out, seen = [], {}
+    """The records of ``decide.py`` JSON-lines files, one per clip, occlusion and tracker
+    seed: records of the same run and seed holding other variants (a variant run later
+    beside stored ones) are merged; a variant seen twice for one run and seed is an error
+    naming the file and line."""
+    out, seen = {}, {}
     for path in paths:
         with open(path) as f:
             for n, line in enumerate(f, 1):
@@ -45,14 +47,17 @@ def load(paths: list[str]) -> list[dict]:
                     key = (rec["group"], rec["seed"], rec["motion"], rec["occ"], rec["tseed"])
                 except (ValueError, KeyError) as e:
                     raise SystemExit(f"error: {path}:{n}: not a decide.py record ({e})") from None
-                if key in seen:
-                    raise SystemExit(
-                        f"error: {path}:{n}: clip {key[:4]} tracker seed {key[4]} again "
-                        f"(first at {seen[key]}): one record per clip and seed"
-                    )
-                seen[key] = f"{path}:{n}"
-                out.append(rec)
-    return out
+                for name, value in rec.items():
+                    if not isinstance(value, dict):
+                        continue
+                    if (key, name) in seen:
+                        raise SystemExit(
+                            f"error: {path}:{n}: clip {key[:4]} tracker seed {key[4]} variant "
+                            f"{name!r} again (first at {seen[key, name]}): one per clip and seed"
+                        )
+                    seen[key, name] = f"{path}:{n}"
+                out.setdefault(key, {}).update(rec)
+    return list(out.values())
 
 
 def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:

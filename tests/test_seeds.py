@@ -255,8 +255,15 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
 def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
     paired = load("paired")
     twice = _write(tmp_path / "twice.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)] * 2)
-    with pytest.raises(SystemExit, match=r"twice.jsonl:2: .*tracker seed 0 again.*twice.jsonl:1"):
+    with pytest.raises(SystemExit, match=r"twice.jsonl:2: .*seed 0 variant 'default' again.*:1"):
         paired.load([twice])
+    # A variant run later beside stored ones joins their records.
+    later = _record("standard", 168, 0, 0, 1.0, 5.0)
+    later["other"] = later.pop("far1.0")
+    del later["default"]
+    both = paired.load([_write(tmp_path / "a.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)]),
+                        _write(tmp_path / "b.jsonl", [later])])  # fmt: skip
+    assert len(both) == 1 and both[0]["other"]["D"] == 5.0 and both[0]["far1.0"]["D"] == 2.0
     short = [_record("standard", 168, 0, t, 1.0, 2.0) for t in (0, 1)]
     short.append(_record("standard", 169, 0, 0, 1.0, 2.0))
     with pytest.raises(SystemExit, match=r"incomplete \(tracker seeds \[0, 1\].*169 occ 0: \[0\]"):
