@@ -146,7 +146,9 @@ class TrackerConfig(eqx.Module):
     (2026-11-29) it met its tuning rule (side-view tuning clips -4 to -5 mm; 40 decision
     clips offline 46.9 -> 44.9, online 52.7 -> 49.9) and was stopped by two report sets (wide
     online +3.5 mm, real wide offline +2.9; benchmarks/README.md, "A side view hides the far
-    arm"): opt-in. Not in the paper. Traced."""
+    arm"): opt-in. On 24 fresh tuning runs, each with tracker seeds 0-2 (2026-12-01), it
+    changed D by -0.09 mm offline and +0.10 online ("Decisions on several tracker seeds").
+    Not in the paper. Traced."""
     surface_offset: bool = eqx.field(default=True, static=True)
     """Push lifted landmarks back by the local body radius (surface -> joint centre). Not in
     the paper; see README "Beyond the paper"."""
