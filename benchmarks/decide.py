@@ -170,6 +170,34 @@ def settings(variant: str) -> dict:
     )
 
 
+def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
+    """Track each ``((group, seed, motion, variety), occlusion, tracker seed)`` of ``todo``
+    with every variant (name -> ``Tracker`` keywords) and append one JSON line per item to
+    ``out`` (also printed): D, coverage, swapped-limb frames, acceleration error, detections
+    dropped, seconds, the step's median ms a frame and, online, the motion model's."""
+    with open(out, "a") as f:
+        for (group, seed, motion, variety), occ, ts in todo:
+            seq = pt.synth.generate(
+                seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
+                height=240, with_rgb=False, variety=variety,
+            )  # fmt: skip
+            rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
+            for name, kwargs in variants.items():
+                t0 = time.perf_counter()
+                tr = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs)
+                res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+                rec[name] = {
+                    **decision_measures(res.keypoints3d, seq.joints3d),
+                    "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
+                    "step_ms": res.ms_per_frame,
+                }  # fmt: skip
+                if mode == "online":  # the online motion model's median time per frame
+                    rec[name]["motion_ms"] = float(np.median(tr.motion_times) * 1000)
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            print(json.dumps(rec), flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", help="JSON lines, appended to")
@@ -202,27 +230,7 @@ def main() -> int:
     variants = {v: settings(v) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]
-    with open(a.out, "a") as f:
-        for (group, seed, motion, variety), occ, ts in todo:
-            seq = pt.synth.generate(
-                seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-                height=240, with_rgb=False, variety=variety,
-            )  # fmt: skip
-            rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
-            for name, kwargs in variants.items():
-                t0 = time.perf_counter()
-                tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, **kwargs)
-                res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
-                rec[name] = {
-                    **decision_measures(res.keypoints3d, seq.joints3d),
-                    "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
-                    "step_ms": res.ms_per_frame,
-                }  # fmt: skip
-                if a.mode == "online":  # the online motion model's median time per frame
-                    rec[name]["motion_ms"] = float(np.median(tr.motion_times) * 1000)
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
-            print(json.dumps(rec), flush=True)
+    track(todo, variants, a.mode, a.out)
     return 0
 
 

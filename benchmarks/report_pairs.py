@@ -25,14 +25,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-import time
 
-from decide import settings
+from decide import settings, track
 from motion import report_clips
-from tune import decision_measures
-
-import posetrack as pt
 
 #: ``--set``: (``posetrack.synth`` variety, ``motion.py --motions``) of each report set.
 SETS = {
@@ -112,27 +107,11 @@ def main() -> int:
         ap.error("nothing to do: give --variants to track or --stored rows to read")
     stored = merge([r for spec in a.stored for r in stored_records(spec, clips, group)])
     seeds = [int(s) for s in a.tracker_seeds.split(",")] if variants else []
-    todo = [(c, occ, ts) for c in clips for occ in (0, 2) for ts in seeds][a.part :: a.parts]
+    todo = [((group, seed, motion, variety), occ, ts) for seed, motion in clips
+            for occ in (0, 2) for ts in seeds][a.part :: a.parts]  # fmt: skip
     with open(a.out, "a") as f:
-        for rec in stored:
-            f.write(json.dumps(rec) + "\n")
-        for (seed, motion), occ, ts in todo:
-            seq = pt.synth.generate(
-                seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-                height=240, with_rgb=False, variety=variety,
-            )  # fmt: skip
-            rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
-            for name, kwargs in variants.items():
-                t0 = time.perf_counter()
-                tr = pt.Tracker(seq.intrinsics, mode=a.mode, seed=ts, **kwargs)
-                res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
-                rec[name] = {
-                    **decision_measures(res.keypoints3d, seq.joints3d),
-                    "s": time.perf_counter() - t0,
-                }
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
-            print(json.dumps(rec), file=sys.stderr, flush=True)
+        f.writelines(json.dumps(rec) + "\n" for rec in stored)
+    track(todo, variants, a.mode, a.out)
     return 0
 
 
