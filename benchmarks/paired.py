@@ -15,6 +15,7 @@ apart somewhere, the tracker seed alone moves D by 30-80 mm, so a mean change de
 seed is largely decided by which clips diverge under that seed.
 
     python benchmarks/paired.py RUNS.jsonl [MORE.jsonl ...] --candidate far1.0 [--json OUT]
+    python benchmarks/paired.py RUNS.jsonl ... --spread default  # mean D per tracker seed
 """
 
 from __future__ import annotations
@@ -126,16 +127,64 @@ def table(runs: list[dict]) -> list[tuple[str, dict]]:
     return [(label, summary(rs)) for label, rs in rows.items()] + [("all", summary(runs))]
 
 
+def seed_means(records: list[dict], variant: str) -> list[tuple[str, dict]]:
+    """How much a variant's reported means move with the tracker seed alone: per group and
+    occlusion (then over all runs) each tracker seed's mean D over the runs, and the mean of
+    the runs' own standard deviations over seeds (``spread``). Every run must have the same
+    seeds (as :func:`run_changes` checks)."""
+    run_changes(records, variant, variant)  # the completeness checks
+    rows: dict[str, dict[int, list[float]]] = {}
+    spread: dict[str, list[float]] = {}
+    runs = defaultdict(dict)
+    for rec in records:
+        runs[(rec["group"], rec["seed"], rec["occ"])][rec["tseed"]] = rec[variant]["D"]
+    for (group, _, occ), by_seed in runs.items():
+        label = f"{group}, {'clean' if occ == 0 else f'occlusion {occ}'}"
+        d = np.array([by_seed[t] for t in sorted(by_seed)])
+        for key in (label, "all"):
+            for t, v in by_seed.items():
+                rows.setdefault(key, {}).setdefault(t, []).append(v)
+            spread.setdefault(key, []).append(float(d.std(ddof=1)) if len(d) > 1 else 0.0)
+    rows["all"] = rows.pop("all")
+    return [
+        (label, {"D_by_tseed": {t: float(np.mean(v)) for t, v in sorted(by.items())},
+                 "runs": len(next(iter(by.values()))), "spread": float(np.mean(spread[label]))})
+        for label, by in rows.items()
+    ]  # fmt: skip
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("runs", nargs="+", help="decide.py JSON-lines files")
     ap.add_argument("--base", default="default", help="the baseline variant (default: default)")
-    ap.add_argument("--candidate", required=True, help="the variant whose change is read")
+    ap.add_argument("--candidate", help="the variant whose change is read")
+    ap.add_argument(
+        "--spread", metavar="VARIANT",
+        help="instead: that variant's mean D per tracker seed (how much a reported mean moves "
+        "with the seed alone)",
+    )  # fmt: skip
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
     for path in a.runs:
         if not Path(path).is_file():
             ap.error(f"{path}: no such file")
+    if (a.candidate is None) == (a.spread is None):
+        ap.error("give one of --candidate and --spread")
+    if a.spread:
+        rows = seed_means(load(a.runs), a.spread)
+        seeds = list(rows[-1][1]["D_by_tseed"])
+        print(f"{a.spread}: mean D mm (13 joints) per tracker seed; spread = the runs' own sd")
+        print(f"{'runs':<34} {'n':>3} " + " ".join(f"{'seed ' + str(t):>8}" for t in seeds)
+              + f" {'range':>6} {'spread':>6}")  # fmt: skip
+        for label, r in rows:
+            ds = list(r["D_by_tseed"].values())
+            print(f"{label:<34} {r['runs']:>3} " + " ".join(f"{d:>8.2f}" for d in ds)
+                  + f" {max(ds) - min(ds):>6.2f} {r['spread']:>6.1f}")  # fmt: skip
+        if a.json:
+            doc = {"variant": a.spread, "files": a.runs}
+            doc["table"] = [{"label": label, **r} for label, r in rows]
+            Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
+        return 0
     runs = run_changes(load(a.runs), a.base, a.candidate)
     rows = table(runs)
     print(

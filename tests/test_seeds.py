@@ -305,3 +305,23 @@ def test_the_report_stage_reads_stored_seed_zero_rows_of_the_same_clips(tmp_path
         report.stored_records(f"x={tmp_path / 'm.json'}:MHT_h offline", clips[::-1], "g")
     with pytest.raises(SystemExit, match="expected VARIANT=FILE:ROW"):
         report.stored_records(str(tmp_path / "m.json"), clips, "g")
+
+
+def test_the_seed_means_show_how_a_reported_mean_moves_with_the_tracker_seed():
+    paired = load("paired")
+    records = [
+        _record("standard", 168, 0, 0, 10.0, 0.0),
+        _record("standard", 168, 0, 1, 30.0, 0.0),
+        _record("standard", 169, 0, 0, 20.0, 0.0),
+        _record("standard", 169, 0, 1, 20.0, 0.0),
+        _record("standard", 168, 2, 0, 50.0, 0.0),
+        _record("standard", 168, 2, 1, 40.0, 0.0),
+    ]
+    rows = dict(paired.seed_means(records, "default"))
+    assert list(rows) == ["standard, clean", "standard, occlusion 2", "all"]
+    clean = rows["standard, clean"]
+    assert clean["D_by_tseed"] == {0: 15.0, 1: 25.0} and clean["runs"] == 2
+    assert clean["spread"] == pytest.approx(np.std([10.0, 30.0], ddof=1) / 2)
+    assert rows["all"]["D_by_tseed"] == pytest.approx({0: 80 / 3, 1: 30.0})
+    with pytest.raises(SystemExit, match="incomplete"):
+        paired.seed_means(records[:-1], "default")
