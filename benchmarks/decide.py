@@ -67,16 +67,16 @@ def clips(
     ``standard_seeds`` (standard procedural clips; both of motion ``PROCEDURAL[seed % 6]``),
     the clips of those tuning seeds instead, in that order; ``side_seeds`` adds wide
     procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
-    room and turning round, a motion the 40 clips do not have); ``base=False``: those only."""
+    room and turning round, a motion the 40 clips do not have); ``base=False``: not the 20
+    decision clips (the seeds given only)."""
     own = {"--real-seeds": real_seeds, "--procedural-seeds": procedural_seeds}
     own["--standard-seeds"] = standard_seeds
     for option, seeds in own.items():
         if seeds is not None:
             _check(seeds, option)
-    out = []
-    if base and all(seeds is None for seeds in own.values()):
-        out = _base_clips()
-    elif base:
+    if all(seeds is None for seeds in own.values()):
+        out = _base_clips() if base else []
+    else:
         out = [("wide real", s, real_motion(s), "wide") for s in real_seeds or ()]
         for group, variety, seeds in (
             ("wide procedural", "wide", procedural_seeds),

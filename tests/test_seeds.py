@@ -114,7 +114,8 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
         ("standard", 168, decide.PROCEDURAL[168 % 6], "standard"),
         ("walk_across", 196, "walk_across", "wide"),
     ]
-    assert decide.clips(None, [196], False, [173]) == mixed[-1:]
+    assert decide.clips(None, [196], False, [173]) == [mixed[1], mixed[3]]
+    assert decide.clips(None, [196], False) == mixed[-1:]
     for option, args in (("--procedural-seeds", (None, None, True, [50])),
                          ("--standard-seeds", (None, None, True, None, [99]))):  # fmt: skip
         with pytest.raises(SystemExit, match=f"{option}.*not tuning seeds"):
