@@ -69,8 +69,11 @@ def clips(
     procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
     room and turning round, a motion the 40 clips do not have); ``base=False``: not the 20
     decision clips (the seeds given only)."""
-    own = {"--real-seeds": real_seeds, "--procedural-seeds": procedural_seeds}
-    own["--standard-seeds"] = standard_seeds
+    own = {
+        "--real-seeds": real_seeds,
+        "--procedural-seeds": procedural_seeds,
+        "--standard-seeds": standard_seeds,
+    }
     for option, seeds in own.items():
         if seeds is not None:
             _check(seeds, option)

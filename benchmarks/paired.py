@@ -33,11 +33,9 @@ CLEAR_MM = 5.0
 
 
 def load(paths: list[str]) -> list[dict]:
-    """The records of ``decide.py`` JSON-lines files, one per clip, occlusion and tracker
-    seed: records of the same run and seed holding other variants (a variant run later
-    beside stored ones) are merged; a variant seen twice for one run and seed is an error
-    naming the file and line."""
-    out, seen = {}, {}
+    """The records of ``decide.py`` JSON-lines files, joined (:func:`join`); a line that is not
+    a record is an error naming the file and line."""
+    lines = []
     for path in paths:
         with open(path) as f:
             for n, line in enumerate(f, 1):
@@ -45,19 +43,34 @@ def load(paths: list[str]) -> list[dict]:
                     continue
                 try:
                     rec = json.loads(line)
-                    key = (rec["group"], rec["seed"], rec["motion"], rec["occ"], rec["tseed"])
+                    _key(rec)
                 except (ValueError, KeyError) as e:
                     raise SystemExit(f"error: {path}:{n}: not a decide.py record ({e})") from None
-                for name, value in rec.items():
-                    if not isinstance(value, dict):
-                        continue
-                    if (key, name) in seen:
-                        raise SystemExit(
-                            f"error: {path}:{n}: clip {key[:4]} tracker seed {key[4]} variant "
-                            f"{name!r} again (first at {seen[key, name]}): one per clip and seed"
-                        )
-                    seen[key, name] = f"{path}:{n}"
-                out.setdefault(key, {}).update(rec)
+                lines.append((rec, f"{path}:{n}"))
+    return join(lines)
+
+
+def _key(rec: dict) -> tuple:
+    return rec["group"], rec["seed"], rec["motion"], rec["occ"], rec["tseed"]
+
+
+def join(records: list[tuple[dict, str]]) -> list[dict]:
+    """One record per clip, occlusion and tracker seed from ``(record, where)`` pairs: records
+    of the same run and seed holding other variants (a variant run later beside stored ones)
+    are merged; a variant seen twice for one run and seed is an error naming both places."""
+    out, seen = {}, {}
+    for rec, where in records:
+        key = _key(rec)
+        for name, value in rec.items():
+            if not isinstance(value, dict):
+                continue
+            if (key, name) in seen:
+                raise SystemExit(
+                    f"error: {where}: clip {key[:4]} tracker seed {key[4]} variant {name!r} "
+                    f"again (first at {seen[key, name]}): one per clip and seed"
+                )
+            seen[key, name] = where
+        out.setdefault(key, {}).update(rec)
     return list(out.values())
 
 
@@ -91,6 +104,7 @@ def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
         out.append({
             "group": group, "seed": seed, "motion": motion, "occ": occ, "tseeds": full,
             "base_D": float(b.mean()), "candidate_D": float(c.mean()),
+            "base_D_by_tseed": b.tolist(),
             "change": float((c - b).mean()), "spread": float(b.std(ddof=1)) if len(b) > 1 else 0.0,
             "base_swaps": sum(by_seed[t][base]["swaps"] for t in full),
             "candidate_swaps": sum(by_seed[t][candidate]["swaps"] for t in full),
@@ -120,11 +134,16 @@ def summary(runs: list[dict]) -> dict:
 
 def table(runs: list[dict]) -> list[tuple[str, dict]]:
     """``(label, summary)`` per group and occlusion (in the runs' order), then over all."""
+    return [(label, summary(rs)) for label, rs in _groups(runs)]
+
+
+def _groups(runs: list[dict]) -> list[tuple[str, list[dict]]]:
+    """The runs per group and occlusion (in the runs' order), then all of them."""
     rows = {}
     for r in runs:
         occ = "clean" if r["occ"] == 0 else f"occlusion {r['occ']}"
         rows.setdefault(f"{r['group']}, {occ}", []).append(r)
-    return [(label, summary(rs)) for label, rs in rows.items()] + [("all", summary(runs))]
+    return [*rows.items(), ("all", runs)]
 
 
 def seed_means(records: list[dict], variant: str) -> list[tuple[str, dict]]:
@@ -132,25 +151,14 @@ def seed_means(records: list[dict], variant: str) -> list[tuple[str, dict]]:
     occlusion (then over all runs) each tracker seed's mean D over the runs, and the mean of
     the runs' own standard deviations over seeds (``spread``). Every run must have the same
     seeds (as :func:`run_changes` checks)."""
-    run_changes(records, variant, variant)  # the completeness checks
-    rows: dict[str, dict[int, list[float]]] = {}
-    spread: dict[str, list[float]] = {}
-    runs = defaultdict(dict)
-    for rec in records:
-        runs[(rec["group"], rec["seed"], rec["occ"])][rec["tseed"]] = rec[variant]["D"]
-    for (group, _, occ), by_seed in runs.items():
-        label = f"{group}, {'clean' if occ == 0 else f'occlusion {occ}'}"
-        d = np.array([by_seed[t] for t in sorted(by_seed)])
-        for key in (label, "all"):
-            for t, v in by_seed.items():
-                rows.setdefault(key, {}).setdefault(t, []).append(v)
-            spread.setdefault(key, []).append(float(d.std(ddof=1)) if len(d) > 1 else 0.0)
-    rows["all"] = rows.pop("all")
-    return [
-        (label, {"D_by_tseed": {t: float(np.mean(v)) for t, v in sorted(by.items())},
-                 "runs": len(next(iter(by.values()))), "spread": float(np.mean(spread[label]))})
-        for label, by in rows.items()
-    ]  # fmt: skip
+    out = []
+    for label, runs in _groups(run_changes(records, variant, variant)):
+        by_seed = np.mean([r["base_D_by_tseed"] for r in runs], axis=0)
+        out.append((label, {
+            "D_by_tseed": {t: float(d) for t, d in zip(runs[0]["tseeds"], by_seed)},
+            "runs": len(runs), "spread": float(np.mean([r["spread"] for r in runs])),
+        }))  # fmt: skip
+    return out
 
 
 def main() -> int:

@@ -28,6 +28,7 @@ import json
 
 from decide import settings, track
 from motion import report_clips
+from paired import join
 
 #: ``--set``: (``posetrack.synth`` variety, ``motion.py --motions``) of each report set.
 SETS = {
@@ -72,16 +73,6 @@ def stored_records(spec: str, clips: list[tuple[int, str]], group: str) -> list[
     return out
 
 
-def merge(records: list[dict]) -> list[dict]:
-    """One record per clip, occlusion and tracker seed, holding every variant given."""
-    out = {}
-    for rec in records:
-        key = (rec["group"], rec["seed"], rec["motion"], rec["occ"], rec["tseed"])
-        out.setdefault(key, {k: rec[k] for k in ("group", "seed", "motion", "occ", "tseed")})
-        out[key].update({k: v for k, v in rec.items() if isinstance(v, dict)})
-    return list(out.values())
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", help="JSON lines, appended to")
@@ -105,7 +96,7 @@ def main() -> int:
     variants = {v: settings(v) for v in a.variants.split(",") if v}
     if not variants and not a.stored:
         ap.error("nothing to do: give --variants to track or --stored rows to read")
-    stored = merge([r for spec in a.stored for r in stored_records(spec, clips, group)])
+    stored = join([(r, spec) for spec in a.stored for r in stored_records(spec, clips, group)])
     seeds = [int(s) for s in a.tracker_seeds.split(",")] if variants else []
     todo = [((group, seed, motion, variety), occ, ts) for seed, motion in clips
             for occ in (0, 2) for ts in seeds][a.part :: a.parts]  # fmt: skip

@@ -290,12 +290,12 @@ def test_the_report_stage_reads_stored_seed_zero_rows_of_the_same_clips(tmp_path
     weight = [{"seed": c["seed"], "motion": c["motion"], "occlusion": c["occlusion"],
                "cand": row(1.0)} for c in stored]  # fmt: skip
     (tmp_path / "w.json").write_text(json.dumps({"clips": weight}))
-    recs = report.merge(
-        report.stored_records(f"default={tmp_path / 'w.json'}:cand", clips, "report standard")
-        + report.stored_records(
-            f"far1.0={tmp_path / 'm.json'}:MHT_h offline", clips, "report standard"
-        )
-    )
+    recs = report.join(
+        [(r, "w") for r in report.stored_records(f"default={tmp_path / 'w.json'}:cand", clips,
+                                                  "report standard")]
+        + [(r, "m") for r in report.stored_records(f"far1.0={tmp_path / 'm.json'}:MHT_h offline",
+                                                    clips, "report standard")]
+    )  # fmt: skip
     assert len(recs) == 4 and {r["tseed"] for r in recs} == {0}
     box = next(r for r in recs if r["seed"] == 1 and r["occ"] == 2)
     assert box["far1.0"]["D"] == 12.0 and box["default"]["D"] == 1.0
