@@ -23,20 +23,22 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
 
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
-``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and
-no consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
+``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``alllm-norefit`` (that and no
+consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
 (``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
-(``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off),
-``kept`` (``duplicates=None``), ``settleN`` (``DuplicateSettings(settle=N)``;
-``settle1`` is the default filter), ``bandM`` (``TrackerConfig(lift_band=M)``, metres),
-``confX`` (``TrackerConfig(depth_confidence=X)``), ``farX`` (the same on the far side's
-limbs in a side view only, ``TrackerConfig(depth_confidence_far=X)``),
-``sides:G+G...`` (``SideSettings(groups=(G, ...))``,
-names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets ``torso_with_limbs``);
+(``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``bothways``
+(``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
+and the two passes averaged), ``kept`` (``duplicates=None``), ``settleN``
+(``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
+(``TrackerConfig(lift_band=M)``, metres), ``confX`` (``TrackerConfig(depth_confidence=X)``),
+``farX`` (the same on the far side's limbs in a side view only,
+``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
+...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
+``torso_with_limbs``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
@@ -147,6 +149,8 @@ def settings(variant: str) -> dict:
                 return {"sides": pt.SideSettings.for_mode("online", **{field: value})}
             except ValueError as e:
                 raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant == "bothways":
+        return {"motion": pt.SmoothSettings(both_ways=True)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -169,7 +173,7 @@ def settings(variant: str) -> dict:
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
-        "'kept', 'settleN', 'bandM', 'confX', 'farX', 'sides:G+G...'"
+        "'bothways', 'kept', 'settleN', 'bandM', 'confX', 'farX', 'sides:G+G...'"
     )
 
 

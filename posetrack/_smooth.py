@@ -122,6 +122,10 @@ class SmoothSettings:
     """See ``outlier_distance`` (the tracker's per-keypoint confidence, in [0, 1])."""
     outlier_frames: int = 3
     """See ``outlier_distance``."""
+    both_ways: bool = False
+    """Offline: track the recording a second time, from the last frame to the first, and
+    smooth the average of the two passes' per-frame poses (:mod:`posetrack._bothways`);
+    costs a second per-frame pass."""
 
     def __post_init__(self):
         if not (self.accel_std > 0 and self.landmark_std > 0):

@@ -31,6 +31,7 @@ from ._associate import (
     other_people_mask,
 )
 from ._batcher import Pending, resolve
+from ._bothways import Reindexed, average_poses
 from ._camera import Intrinsics, project_host
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
@@ -650,6 +651,9 @@ class Tracker:
         self.smooth_s = 0.0
         self.sides_s = 0.0
         """Seconds of the last :meth:`run`'s left/right pre-pass (offline, ``sides`` set)."""
+        self.both_ways_frames = 0
+        """Offline with :attr:`SmoothSettings.both_ways`: frames the last :meth:`run` averaged
+        over its two passes (both tracked the same person there)."""
         self.refine_s = 0.0
         self._prepare_started = False
         # (StepBatcher, slot) when track_many runs this tracker's steps batched with others'.
@@ -1390,6 +1394,10 @@ class Tracker:
             self.compile_s += time.perf_counter() - t0
         G = 0 if self.sides is None else len(self.sides.groups)
         out = _RunOutputs.empty(T, G)
+        both_ways = self.mode == "offline" and self.motion.both_ways and T > 1
+        self.both_ways_frames = 0
+        if both_ways and progress is not None:  # the two passes share one bar
+            progress, progress_back = _share(progress, 0, 2 * T), _share(progress, T, 2 * T)
         self._reset_motion()
         self._found_floor = None
         # Body shape from depth: the best-observed tracked frame of each of F equal stretches
@@ -1416,6 +1424,8 @@ class Tracker:
             frames(progress, t, T)
         finally:
             self._two_sided, self._run_frame, self._as_detected = None, None, False
+        if both_ways:
+            self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
         kp3, params, delta, status, conf_out = out.kp3, out.params, out.delta, out.status, out.conf
         lm3, has_d, det, kp2, lm_conf = out.lm3, out.has_d, out.det, out.kp2, out.lm_conf
         person, num_people = out.person, out.num_people
@@ -1769,6 +1779,45 @@ class Tracker:
             kept.update(kept_ex)
         return stop
 
+    def _track_backwards(
+        self, out: _RunOutputs, depths, keypoints2d, confidence, groups: int, progress
+    ) -> None:
+        """Offline with :attr:`SmoothSettings.both_ways`: track the recording again from its
+        last frame to its first (a fresh track, the person each frame's forward row followed,
+        their labels as the forward pass fitted them) and put the average of the two passes'
+        poses (:func:`average_poses`) into ``out`` where both tracked the same person. The
+        tracker is left as the forward pass left it (its state after the last frame)."""
+        T = len(depths)
+        order = np.arange(T - 1, -1, -1)
+        after_forward = (self._snapshot(), self._person, self.exchanged.copy(), self._follower)
+        found_floor, flips = self._found_floor, self.reinit_flip_frames
+        self.reset()
+        self._reset_motion()
+        back = _RunOutputs.empty(T, groups)
+        if self.sides is not None:
+            self._two_sided = (out.person[order], out.exchanged[order])
+        views = [Reindexed(x, order) for x in (depths, keypoints2d, confidence)]
+        try:
+            self._run_frames_into(back, {}, 0, *views, progress, 0, T)
+        finally:
+            self._two_sided, self._run_frame = None, None
+        snap, self._person, self.exchanged, follower = after_forward
+        self._restore(snap)
+        self._follower = follower
+        self._found_floor, self.reinit_flip_frames = found_floor, flips
+        both = (
+            (out.status == TRACKED) & (back.status[order] == TRACKED)
+            & (out.person == back.person[order]) & (out.person >= 0)
+        )  # fmt: skip
+        if not both.any():
+            return
+        params, kps = average_poses(
+            out.params[both], back.params[order][both], out.kp3[both], back.kp3[order][both]
+        )  # fmt: skip
+        out.params[both], out.kp3[both] = params, kps
+        out.conf[both] = 0.5 * (out.conf[both] + back.conf[order][both])
+        self.both_ways_frames = int(both.sum())
+
     def _snapshot(self) -> tuple:
         """The host-side state :meth:`update` carries from frame to frame in offline
         :meth:`run` (device arrays are immutable and shared; the follower and the labeller are
@@ -1874,6 +1923,12 @@ class Tracker:
             p = follower.select(cands)
             follower.observe(cands, p)
             yield d, cands, p
+
+
+def _share(progress: ProgressCallback, offset: int, total: int) -> ProgressCallback:
+    """``progress`` for one of several passes over the frames: its frames counted from
+    ``offset`` of ``total``."""
+    return lambda done, _total, postfix="": progress(offset + done, total, postfix)
 
 
 def nearest_index(have: np.ndarray, n: int) -> np.ndarray:
