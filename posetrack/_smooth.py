@@ -161,6 +161,10 @@ class SmoothSettings:
                 f"SmoothSettings.outlier_distance must be positive (inf: off), got "
                 f"{self.outlier_distance}"
             )
+        if not isinstance(self.both_ways, bool):
+            raise ValueError(
+                f"SmoothSettings.both_ways must be True or False, got {self.both_ways!r}"
+            )
         if self.outlier_frames < 1:
             raise ValueError(
                 f"SmoothSettings.outlier_frames must be >= 1, got {self.outlier_frames}"

@@ -1396,6 +1396,7 @@ class Tracker:
         out = _RunOutputs.empty(T, G)
         both_ways = self.mode == "offline" and self.motion.both_ways and T > 1
         self.both_ways_frames = 0
+        progress_back = None
         if both_ways and progress is not None:  # the two passes share one bar
             progress, progress_back = _share(progress, 0, 2 * T), _share(progress, T, 2 * T)
         self._reset_motion()

@@ -447,6 +447,33 @@ def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     assert pt.accuracy(off.keypoints3d, gt).mean_mm < pt.accuracy(per.keypoints3d, gt).mean_mm
 
 
+def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, modes):
+    """``SmoothSettings(both_ways=True)``: the forward pass is the one-way run's; a second
+    pass from the last frame back is averaged into it before the smoother; one progress bar
+    counts both passes; the tracker is left as the forward pass left it."""
+    args = (clip.depth, clip.keypoints2d, clip.confidence)
+    T, gt = len(clip.depth), clip.joints3d
+    one_way = pt.Tracker(clip.intrinsics)
+    one = one_way.run(*args)
+    np.testing.assert_array_equal(one.keypoints3d, modes["offline"].keypoints3d)
+    calls = []
+    tr = pt.Tracker(clip.intrinsics, motion=pt.SmoothSettings(both_ways=True))
+    res = tr.run(*args, progress=lambda done, total, postfix="": calls.append((done, total)))
+    assert calls == [(t, 2 * T) for t in range(1, 2 * T + 1)]
+    assert one_way.both_ways_frames == 0 and T - 2 <= tr.both_ways_frames <= T
+    fwd = one.per_frame_keypoints3d
+    back = 2 * res.per_frame_keypoints3d - fwd  # the backward pass where averaged, else fwd
+    moved = np.linalg.norm(back - fwd, axis=-1).mean(axis=1)
+    assert (moved > 1e-3).sum() >= T // 2  # a second track, not the first again
+    # ... of the same person, about as good (it is a track, not noise).
+    assert pt.accuracy(back, gt).mean_mm < 1.5 * pt.accuracy(fwd, gt).mean_mm
+    np.testing.assert_array_equal(res.params.shape, (T, 43))
+    np.testing.assert_array_equal(tr.state.best, one_way.state.best)
+    assert tr.person == one_way.person
+    d_both, d_one = (pt.accuracy(r.keypoints3d, gt).mean_mm for r in (res, one))
+    assert d_both < 1.25 * d_one
+
+
 def test_offline_refines_the_body_shape_and_places_the_shoulders_better(clip, modes):
     off, kp_shape, per = modes["offline"], modes["offline, kp shape"], modes["per-frame"]
     # Landmark-based shape for the per-frame pass and refine=None; refined against the depth
