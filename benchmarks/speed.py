@@ -100,7 +100,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import posetrack as pt
-from posetrack import TrackerConfig
+from posetrack import SmoothSettings, TrackerConfig
 from posetrack._body import JOINT_PARENTS, KEYPOINT_FRAMES, normalize_params
 from posetrack._depthobs import tracker_landmarks, tracker_observation
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose, fit_problem, fit_residuals
@@ -837,12 +837,27 @@ def host_overhead(r: StepRunner, n_frames: int) -> dict:
     tr4.run(*frames, progress=None)  # compiled now: the timed run
     offline_ms = 1e3 * tr4.smooth_s / len(idx)
     offline_step = 1e3 * float(np.median(tr4.step_times))
+    # Offline both ways (SmoothSettings.both_ways): a second per-frame pass, backwards; its
+    # steps per frame (2, plus any stretch the left/right arbitration tracked twice) at its
+    # own median step, and its smoother, against its own median step.
+    tr5 = Tracker(
+        seq.intrinsics, r.config, shape=r.frames.shape, mode="offline",
+        motion=SmoothSettings(both_ways=True),
+    )  # fmt: skip
+    tr5.run(*frames, progress=None)
+    both_steps = len(tr5.step_times) / len(idx)
+    both_step = 1e3 * float(np.median(tr5.step_times))
+    both_ms = 1e3 * tr5.smooth_s / len(idx)
     return {
         "online_ms": round(online_ms, 3),
         "online_retracked_share": round(twice, 3),
         "online_total_over_step": round((online_step + online_ms) * (1 + twice) / online_step, 3),
         "offline_ms_per_frame": round(offline_ms, 3),
         "offline_total_over_step": round((offline_step + offline_ms) / offline_step, 3),
+        "offline_both_ways_steps_per_frame": round(both_steps, 3),
+        "offline_both_ways_total_over_step": round(
+            (both_steps * both_step + both_ms) / both_step, 3
+        ),
         "update_ms": round(1e3 * float(np.median(walls)), 3),
         "update_overhead_ms": round(1e3 * float(np.median(update_over)), 3),
         "run_ms_per_frame": round(1e3 * run_s / (T - 1), 3),
@@ -1156,7 +1171,8 @@ def main(argv=None):
     print(
         "\nhost overhead at 160x120 (ms per frame; 'added' = the public call's wall time minus"
         " its own step call, paired per frame): step | Tracker.update (added) | Tracker.run"
-        " (added) | online motion model (total / step) | offline smoother (total / step)"
+        " (added) | online motion model (total / step) | offline smoother (total / step) | offline"
+        " both ways (total / step)"
     )
     for rec in records:
         if "update_ms" in rec:
@@ -1165,7 +1181,9 @@ def main(argv=None):
                 f"{rec['update_ms']:7.2f} ({rec['update_overhead_ms']:.2f}) | "
                 f"{rec['run_ms_per_frame']:7.2f} ({rec['run_overhead_ms_per_frame']:.2f}) | "
                 f"online +{rec['online_ms']:.2f} ({rec['online_total_over_step']:.2f}x) | "
-                f"offline +{rec['offline_ms_per_frame']:.2f} ({rec['offline_total_over_step']:.2f}x)"
+                f"offline +{rec['offline_ms_per_frame']:.2f} "
+                f"({rec['offline_total_over_step']:.2f}x) | "
+                f"both ways {rec['offline_both_ways_total_over_step']:.2f}x"
             )
     for rec in records:
         if rec["method"] == "scipy_equal":

@@ -472,6 +472,9 @@ def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, m
     assert tr.person == one_way.person
     d_both, d_one = (pt.accuracy(r.keypoints3d, gt).mean_mm for r in (res, one))
     assert d_both < 1.25 * d_one
+    # Without a progress callback (the default) as well.
+    quiet = pt.track(*args, clip.intrinsics, motion=pt.SmoothSettings(both_ways=True))
+    np.testing.assert_array_equal(quiet.keypoints3d, res.keypoints3d)
 
 
 def test_offline_refines_the_body_shape_and_places_the_shoulders_better(clip, modes):
