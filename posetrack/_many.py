@@ -81,7 +81,9 @@ def track_many(
         batch: sequences in flight at once (B).
         seed: the hypotheses' random seed of every sequence.
         progress: ``progress(frames_done, total, postfix)`` after every frame of any
-            sequence (``total``: ``total_frames``, else the frames of the sequences started).
+            sequence (``total``: ``total_frames``, else the frames of the sequences started;
+            offline with ``SmoothSettings(both_ways=True)`` each frame counts twice, once per
+            pass: give ``total_frames`` accordingly).
         on_result: ``on_result(index, result_or_error)`` as each sequence finishes (in a
             worker thread), e.g. to write its files at once.
         errors: ``"raise"``: after every sequence has run, re-raise the first failure;
@@ -125,9 +127,9 @@ def track_many(
     def track_one(i: int) -> TrackResult:
         intr, depths, kp, conf = _unpack(items[i])
         items[i] = None  # let a loaded recording go once tracked
-        with lock:
-            counts["total"] += len(depths)
         tracker = Tracker(intr, config, seed=seed, **tracker_options)
+        with lock:  # progress counts every pass over the frames (offline both ways: two)
+            counts["total"] += len(depths) * tracker.passes(len(depths))
         batcher = batcher_for(tracker)
         slot = batcher.join()
         tracker._batched = (batcher, slot)

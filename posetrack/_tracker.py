@@ -565,6 +565,9 @@ class Tracker:
         # The lag is the online mode's alone: offline and per-frame poses wait for nothing.
         lag = int(lag) if mode == "online" else 0
         self.mode, self.lag, self.motion, self.fps = mode, lag, motion, float(fps)
+        # What the motion model's compiled programs see: ``both_ways`` is the run's business,
+        # not theirs (one program either way, and one cache entry for ``posetrack warmup``).
+        self._smoother = dataclasses.replace(motion, both_ways=False)
         if isinstance(sides, str) and sides == "auto":
             sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):
@@ -706,7 +709,7 @@ class Tracker:
             kps, params, valid = est.keypoints3d, est.params, True
         t0 = time.perf_counter()
         self._window, pose, pose_kps = online_update_program(
-            self.motion, self.shape, _host_f32(self.fps), self._window,
+            self._smoother, self.shape, _host_f32(self.fps), self._window,
             _host_f32(kps), _host_f32(conf), _host_f32(params), np.asarray(valid, bool),
             self.lag,
         )  # fmt: skip
@@ -817,7 +820,7 @@ class Tracker:
                 # Every online frame runs it, the first one included: it builds beside the
                 # step.
                 jobs.append((online_update_program, (
-                    self.motion, shape, f32(()), jax.eval_shape(lambda: self._window),
+                    self._smoother, shape, f32(()), jax.eval_shape(lambda: self._window),
                     f32((18, 3)), f32((18,)), f32((43,)), jax.ShapeDtypeStruct((), bool),
                     self.lag,
                 )))  # fmt: skip
@@ -831,7 +834,7 @@ class Tracker:
                 lambda a: jax.ShapeDtypeStruct((W, *a.shape), a.dtype), landmarks()
             )  # fmt: skip
             return [(smooth_window_program, (
-                self.motion, shape, intr, f32((W, 43)), window_lm,
+                self._smoother, shape, intr, f32((W, 43)), window_lm,
                 jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
             ))]  # fmt: skip
 
@@ -1394,7 +1397,7 @@ class Tracker:
             self.compile_s += time.perf_counter() - t0
         G = 0 if self.sides is None else len(self.sides.groups)
         out = _RunOutputs.empty(T, G)
-        both_ways = self.mode == "offline" and self.motion.both_ways and T > 1
+        both_ways = self.passes(T) == 2
         self.both_ways_frames = 0
         progress_back = None
         if both_ways and progress is not None:  # the two passes share one bar
@@ -1437,7 +1440,7 @@ class Tracker:
         if self.mode == "online" and self.lag > 0:
             # The newest frames' smoothed poses were never lagged out: smooth the last window.
             sm, sk = online_flush(
-                self.motion, self.shape, jnp.asarray(self.fps, _DTYPE), self._window
+                self._smoother, self.shape, jnp.asarray(self.fps, _DTYPE), self._window
             )
             sm, sk = np.asarray(sm), np.asarray(sk)
             newest = (self._window_frames > T - 1 - self.lag) & self._window_valid
@@ -1455,7 +1458,7 @@ class Tracker:
                 )  # fmt: skip
                 t0 = time.perf_counter()
                 smoothed, smoothed_kps, interpolated = smooth_sequence(
-                    self.motion, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
+                    self._smoother, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
                     fps=self.fps, keypoints=kp3, pose_confidence=conf_out,
                 )  # fmt: skip
                 params = np.where(valid[:, None], smoothed, params)
@@ -1779,6 +1782,11 @@ class Tracker:
             kept.clear()
             kept.update(kept_ex)
         return stop
+
+    def passes(self, frames: int) -> int:
+        """How many times :meth:`run` goes through a recording of ``frames`` frames (its
+        progress counts each pass): 2 offline with :attr:`SmoothSettings.both_ways`, else 1."""
+        return 2 if self.mode == "offline" and self.motion.both_ways and frames > 1 else 1
 
     def _track_backwards(
         self, out: _RunOutputs, depths, keypoints2d, confidence, groups: int, progress

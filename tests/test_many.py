@@ -64,6 +64,23 @@ def test_track_many_equals_single_runs(seqs):
         assert d_many < 0.1  # and both actually track
 
 
+def test_track_many_both_ways_equals_single_runs_and_counts_both_passes(seqs):
+    """Offline with ``SmoothSettings(both_ways=True)`` inside a batch: the backward pass's
+    chunks are batched like the forward's, each sequence gets what it gets alone, and the
+    progress counts two passes of every frame."""
+    inputs = [(s.intrinsics, s.depth, s.keypoints2d, s.confidence) for s in seqs[:2]]
+    opts = dict(refine=None, motion=pt.SmoothSettings(both_ways=True))
+    calls = []
+    many = pt.track_many(inputs, batch=2, progress=lambda d, t, p: calls.append((d, t)), **opts)
+    assert calls[-1] == (4 * T, 4 * T) and len(calls) == 4 * T
+    for s, r in zip(seqs, many):
+        tr = pt.Tracker(s.intrinsics, **opts)
+        alone = tr.run(s.depth, s.keypoints2d, s.confidence)
+        assert tr.both_ways_frames >= T - 2
+        np.testing.assert_array_equal(r.status, alone.status)
+        np.testing.assert_allclose(r.keypoints3d, alone.keypoints3d, atol=2e-3)
+
+
 def test_batched_chunks_drop_and_reinitialise_as_alone(seqs, monkeypatch):
     """Inside a batch of chunks (B = 2, chunk 16) a track dropped in its second chunk (the
     followed person hidden while a bystander is in view) throws away its queued third chunk
