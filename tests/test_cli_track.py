@@ -22,9 +22,9 @@ import pytest
 import posetrack
 from posetrack import _body as body
 from posetrack import io
-from posetrack.app._cli import _lag, _mode, build_parser, main
-from posetrack.app._export import BVH_KEYPOINTS
 from posetrack._depthobs import NO_FLOOR
+from posetrack.app._cli import _lag, _mode, _motion, build_parser, main
+from posetrack.app._export import BVH_KEYPOINTS
 from posetrack.app._overlay import video_codec
 
 N_FRAMES = 16
@@ -708,3 +708,23 @@ def test_online_flag_waits_the_default_lag_unless_told(command):
     assert parse("--online", "0") == ("online", 0)
     assert parse("--online", "4") == ("online", 4)
     assert parse() == ("offline", 0) and parse("--per-frame") == ("per-frame", 0)
+
+
+@pytest.mark.parametrize("command", ["track", "track-many"])
+def test_both_ways_and_one_way_flags_set_the_offline_passes(command):
+    required = {
+        "track": ["--out", "o", "--depth", "d"],
+        "track-many": ["--out", "o", "--manifest", "m.csv"],
+    }[command]
+
+    def motion(*flags):
+        return _motion(build_parser().parse_args([command, *required, *flags]))
+
+    assert motion() == posetrack.SmoothSettings()
+    assert motion("--both-ways").both_ways is True
+    assert motion("--one-way").both_ways is False
+    for flags in (("--both-ways", "--online"), ("--one-way", "--per-frame")):
+        with pytest.raises(ValueError, match=f"{flags[0]} applies offline only"):
+            motion(*flags)
+    with pytest.raises(SystemExit):  # one or the other
+        build_parser().parse_args([command, *required, "--both-ways", "--one-way"])

@@ -106,6 +106,19 @@ def _lag(args) -> int:
     return 0 if args.online is None else args.online
 
 
+def _motion(args):
+    """The tracker's ``motion`` for ``--both-ways`` / ``--one-way`` (``track``,
+    ``track-many``); offline only."""
+    from .._smooth import SmoothSettings
+
+    if args.both_ways is None:
+        return SmoothSettings()
+    if _mode(args) != "offline":
+        flag = "--both-ways" if args.both_ways else "--one-way"
+        raise ValueError(f"{flag} applies offline only (not with --online or --per-frame)")
+    return SmoothSettings(both_ways=args.both_ways)
+
+
 def _refine(args) -> str | None:
     """The tracker's ``refine`` for ``--no-refine-shape`` (``track``, ``warmup``)."""
     return None if args.no_refine_shape else "auto"
@@ -209,6 +222,7 @@ def _track(args) -> int:
         lag=_lag(args), fps=30.0 if fps is None else fps,
         sides={None: "auto", True: SideSettings.for_mode(mode), False: None}[args.fix_sides],
         refine=_refine(args), duplicates=None if args.keep_duplicates else "auto",
+        motion=_motion(args),
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
@@ -487,6 +501,24 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
+def _add_passes_options(p: argparse.ArgumentParser) -> None:
+    """``--both-ways`` / ``--one-way`` (``track`` and ``track-many``; offline)."""
+    from .._smooth import SmoothSettings
+
+    default = "both ways" if SmoothSettings().both_ways else "one way"
+    passes = p.add_mutually_exclusive_group()
+    passes.add_argument(
+        "--both-ways", dest="both_ways", action="store_const", const=True, default=None,
+        help="offline: track the recording a second time, from the last frame back to the "
+        "first, and smooth the average of the two passes (lower error where one pass goes "
+        f"wrong, mostly under occlusion; twice the tracking steps). Default: {default}",
+    )  # fmt: skip
+    passes.add_argument(
+        "--one-way", dest="both_ways", action="store_const", const=False,
+        help="offline: one forward pass only (half the tracking steps of --both-ways)",
+    )  # fmt: skip
+
+
 def _add_video_options(p: argparse.ArgumentParser) -> None:
     """``--no-video`` and ``--video-panel`` (``track`` and ``track-many``)."""
     p.add_argument("--no-video", action="store_true", help="do not write the overlay video")
@@ -669,6 +701,7 @@ def build_parser() -> argparse.ArgumentParser:
         "else 30)",
     )  # fmt: skip
     _add_mode_options(t)
+    _add_passes_options(t)
     sides = t.add_mutually_exclusive_group()
     sides.add_argument(
         "--fix-sides", dest="fix_sides", action="store_const", const=True, default=None,
@@ -723,6 +756,7 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     _add_method_options(m)
     _add_mode_options(m)
+    _add_passes_options(m)
     _add_video_options(m)
     m.add_argument("--seed", type=int, default=0, help="random seed of the hypotheses")
     m.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -34,9 +34,11 @@ SUMMARY = "summary.json"
 _BUILDING = re.compile(r"\.(.+)\.(?:[A-Za-z0-9_]{8}|[0-9a-f]{12}\.old)\.tmp")
 
 
-def _settings(args, config, mode: str) -> dict[str, Any]:
-    """What a finished recording must have been tracked with to be skipped on a re-run."""
-    return {"method": config.method, "hypotheses": config.n, "mode": mode, "seed": args.seed}
+def _settings(args, config, mode: str, both_ways: bool = False) -> dict[str, Any]:
+    """What a finished recording must have been tracked with to be skipped on a re-run
+    (``both_ways`` only where on: one-way results of older versions still match)."""
+    out = {"method": config.method, "hypotheses": config.n, "mode": mode, "seed": args.seed}
+    return {**out, "both_ways": True} if both_ways else out
 
 
 def _done(folder: Path) -> dict | None:
@@ -117,6 +119,7 @@ def track_many_command(args) -> int:
         _followed_detections,
         _lag,
         _mode,
+        _motion,
         _person_summary,
         _refine,
         _tracker_config,
@@ -129,6 +132,8 @@ def track_many_command(args) -> int:
     count, index = _join_processes(args)
     config = _tracker_config(args)
     mode = _mode(args)
+    motion = _motion(args)
+    passes = 2 if mode == "offline" and motion.both_ways else 1  # progress counts each pass
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1, got {args.batch}")
     manifest = Path(args.manifest)
@@ -136,7 +141,7 @@ def track_many_command(args) -> int:
     out = Path(args.out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise FileExistsError(f"{out}: exists and is not a folder")
-    settings = _settings(args, config, mode)
+    settings = _settings(args, config, mode, mode == "offline" and motion.both_ways)
     todo, skipped = [], []
     for row in rows:
         folder = out / row.name
@@ -225,9 +230,10 @@ def track_many_command(args) -> int:
     order = sorted(range(len(todo)), key=lambda k: (todo[k].intrinsics.shape, k))
     track_many(
         [loader(k) for k in order], config, batch=args.batch, seed=args.seed, mode=mode,
-        progress=bar, total_frames=sum(r.frames for r in todo), errors="return",
+        progress=bar, errors="return",
+        total_frames=sum(r.frames * (passes if r.frames > 1 else 1) for r in todo),
         on_result=lambda i, res: finished(order[i], res),
-        refine=_refine(args), lag=_lag(args),
+        refine=_refine(args), lag=_lag(args), motion=motion,
     )  # fmt: skip
     summary = _record(out, manifest, names, {})
     c = summary["counts"]
