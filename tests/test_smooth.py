@@ -346,6 +346,14 @@ def modes(clip):
 
 
 @pytest.fixture(scope="module")
+def one_way(clip):
+    """The offline mode with the forward pass alone (``both_ways=False``): its tracker and
+    result."""
+    tr = pt.Tracker(clip.intrinsics, motion=pt.SmoothSettings(both_ways=False))
+    return tr, tr.run(clip.depth, clip.keypoints2d, clip.confidence)
+
+
+@pytest.fixture(scope="module")
 def online_lag0_kp_shape(clip):
     """Online at lag 0 without the body-shape refinement."""
     return pt.track(
@@ -428,8 +436,8 @@ def first_dropped_detection(clip) -> int:
     return len(clip.depth)
 
 
-def test_offline_is_the_per_frame_track_smoothed(clip, modes):
-    off, per = modes["offline"], modes["per-frame"]
+def test_offline_is_the_per_frame_track_smoothed(clip, modes, one_way):
+    off, per = one_way[1], modes["per-frame"]
     assert off.mode == "offline" and per.per_frame_keypoints3d is None
     # Left/right relabelling runs offline by default (arbitrated by the depth), not per-frame,
     # and so does the filter of detections that jumped onto another keypoint: until the first
@@ -447,19 +455,20 @@ def test_offline_is_the_per_frame_track_smoothed(clip, modes):
     assert pt.accuracy(off.keypoints3d, gt).mean_mm < pt.accuracy(per.keypoints3d, gt).mean_mm
 
 
-def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, modes):
-    """``SmoothSettings(both_ways=True)``: the forward pass is the one-way run's; a second
-    pass from the last frame back is averaged into it before the smoother; one progress bar
-    counts both passes; the tracker is left as the forward pass left it."""
+def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, modes, one_way):
+    """The offline default (``SmoothSettings(both_ways=True)``): the forward pass is the
+    one-way run's; a second pass from the last frame back is averaged into it before the
+    smoother; one progress bar counts both passes; the tracker is left as the forward pass
+    left it."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     T, gt = len(clip.depth), clip.joints3d
-    one_way = pt.Tracker(clip.intrinsics)
-    one = one_way.run(*args)
-    np.testing.assert_array_equal(one.keypoints3d, modes["offline"].keypoints3d)
+    one_way, one = one_way
     calls = []
-    tr = pt.Tracker(clip.intrinsics, motion=pt.SmoothSettings(both_ways=True))
+    tr = pt.Tracker(clip.intrinsics)
     res = tr.run(*args, progress=lambda done, total, postfix="": calls.append((done, total)))
     assert calls == [(t, 2 * T) for t in range(1, 2 * T + 1)]
+    # The default, with and without a progress callback (pt.track: none).
+    np.testing.assert_array_equal(res.keypoints3d, modes["offline"].keypoints3d)
     assert one_way.both_ways_frames == 0 and T - 2 <= tr.both_ways_frames <= T
     fwd = one.per_frame_keypoints3d
     back = 2 * res.per_frame_keypoints3d - fwd  # the backward pass where averaged, else fwd
@@ -472,9 +481,6 @@ def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, m
     assert tr.person == one_way.person
     d_both, d_one = (pt.accuracy(r.keypoints3d, gt).mean_mm for r in (res, one))
     assert d_both < 1.25 * d_one
-    # Without a progress callback (the default) as well.
-    quiet = pt.track(*args, clip.intrinsics, motion=pt.SmoothSettings(both_ways=True))
-    np.testing.assert_array_equal(quiet.keypoints3d, res.keypoints3d)
 
 
 def test_offline_refines_the_body_shape_and_places_the_shoulders_better(clip, modes):
