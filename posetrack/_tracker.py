@@ -153,7 +153,8 @@ class TrackResult:
     params: np.ndarray
     """(T, 43) pose parameters (never NaN: frames without an estimate repeat the nearest one)."""
     delta: np.ndarray
-    """(T,) Delta of the output pose (Eq. (3)); NaN where not estimated."""
+    """(T,) Delta (Eq. (3)) of the tracker's per-frame pose (offline: before the motion
+    model, of the forward pass); NaN where not estimated."""
     status: np.ndarray
     """(T,) int8: 0 tracked, 1 lost, 2 no observation (``STATUS_NAMES``)."""
     confidence: np.ndarray
@@ -179,7 +180,9 @@ class TrackResult:
     """(T,) int: people detected in each frame (with at least one keypoint)."""
     per_frame_keypoints3d: np.ndarray | None = None
     """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
-    model ran: then they are ``keypoints3d``)."""
+    model ran: then they are ``keypoints3d``); offline both ways (the default,
+    :attr:`SmoothSettings.both_ways`), the average of the forward and backward passes' where
+    both tracked the person."""
     exchanged: np.ndarray | None = None
     """(T, groups) bool: where the detector's left and right keypoints of each
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
