@@ -18,6 +18,12 @@ both tracked with the same person; the motion model then smooths the average onc
 fresh tuning runs with three tracker seeds each, D fell by 2.5 mm (t -2.6), by 3.8-6.8 mm
 a group under occlusion and within 0.4 mm clean (benchmarks/README.md, "Offline: the
 recording tracked both ways"). The cost is the second pass's steps.
+
+Opt-in (``SmoothSettings.both_ways`` is False by default): on the 24 runs it was found on it
+was worse on average (50.1 -> 51.8 mm) and one clean clip went 35 -> 74 mm, where the
+passes disagreed by 100+ mm over the first frames and the smoothed average of their poses
+was worse than either. Averaging the passes' smoothed keypoints (the prototype) did not do
+that; averaging only where the passes agree is another untried guard.
 """
 
 from __future__ import annotations

@@ -122,13 +122,14 @@ class SmoothSettings:
     """See ``outlier_distance`` (the tracker's per-keypoint confidence, in [0, 1])."""
     outlier_frames: int = 3
     """See ``outlier_distance``."""
-    both_ways: bool = True
+    both_ways: bool = False
     """Offline: track the recording a second time, from the last frame to the first, and
     smooth the average of the two passes' per-frame poses (:mod:`posetrack._bothways`);
-    costs a second per-frame pass. On by default since 2026-12-02: on fresh tuning clips D
-    -2.5 mm (t -2.6, three tracker seeds), on the four report sets -0.5 to -2.9 mm but for
-    real motion clean (+0.25) (benchmarks/README.md, "Offline: the recording tracked both
-    ways"). ``False`` (``posetrack track --one-way``): one forward pass, half the steps."""
+    costs a second per-frame pass (``posetrack track --both-ways``). Opt-in: it passed its
+    rule (fresh tuning clips D -2.5 mm, t -2.6 over three tracker seeds; report sets -0.5 to
+    -2.9 mm but for real motion clean, +0.25), but on the clips it was found on one clean run
+    went 35 -> 74 mm where the passes disagree grossly (averaging a pose facing the wrong way
+    with the right one; benchmarks/README.md, "Offline: the recording tracked both ways")."""
 
     def __post_init__(self):
         if not (self.accel_std > 0 and self.landmark_std > 0):

@@ -58,7 +58,7 @@ def test_reindexed_reads_only_what_is_asked_in_the_order_given():
 
 
 def test_both_ways_is_a_bool_setting_of_the_motion_model():
-    assert pt.SmoothSettings().both_ways is True  # the offline default since 2026-12-02
-    assert pt.SmoothSettings(both_ways=False).both_ways is False
+    assert pt.SmoothSettings().both_ways is False  # opt-in (benchmarks/README.md)
+    assert pt.SmoothSettings(both_ways=True).both_ways is True
     with pytest.raises(ValueError, match="both_ways"):
         pt.SmoothSettings(both_ways=1)

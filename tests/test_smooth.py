@@ -347,8 +347,8 @@ def modes(clip):
 
 @pytest.fixture(scope="module")
 def one_way(clip):
-    """The offline mode with the forward pass alone (``both_ways=False``): its tracker and
-    result."""
+    """The offline mode with the forward pass alone (``both_ways=False``, the default): its
+    tracker and result."""
     tr = pt.Tracker(clip.intrinsics, motion=pt.SmoothSettings(both_ways=False))
     return tr, tr.run(clip.depth, clip.keypoints2d, clip.confidence)
 
@@ -456,19 +456,22 @@ def test_offline_is_the_per_frame_track_smoothed(clip, modes, one_way):
 
 
 def test_offline_both_ways_averages_a_backward_pass_into_the_forward_one(clip, modes, one_way):
-    """The offline default (``SmoothSettings(both_ways=True)``): the forward pass is the
-    one-way run's; a second pass from the last frame back is averaged into it before the
+    """``SmoothSettings(both_ways=True)``: the forward pass is the one-way run's (the
+    default's); a second pass from the last frame back is averaged into it before the
     smoother; one progress bar counts both passes; the tracker is left as the forward pass
     left it."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     T, gt = len(clip.depth), clip.joints3d
     one_way, one = one_way
+    np.testing.assert_array_equal(one.keypoints3d, modes["offline"].keypoints3d)  # default
     calls = []
-    tr = pt.Tracker(clip.intrinsics)
+    both = pt.SmoothSettings(both_ways=True)
+    tr = pt.Tracker(clip.intrinsics, motion=both)
     res = tr.run(*args, progress=lambda done, total, postfix="": calls.append((done, total)))
     assert calls == [(t, 2 * T) for t in range(1, 2 * T + 1)]
-    # The default, with and without a progress callback (pt.track: none).
-    np.testing.assert_array_equal(res.keypoints3d, modes["offline"].keypoints3d)
+    # With and without a progress callback (pt.track: none).
+    quiet = pt.track(*args, clip.intrinsics, motion=both)
+    np.testing.assert_array_equal(res.keypoints3d, quiet.keypoints3d)
     assert one_way.both_ways_frames == 0 and T - 2 <= tr.both_ways_frames <= T
     fwd = one.per_frame_keypoints3d
     back = 2 * res.per_frame_keypoints3d - fwd  # the backward pass where averaged, else fwd
