@@ -180,7 +180,7 @@ class TrackResult:
     """(T,) int: people detected in each frame (with at least one keypoint)."""
     per_frame_keypoints3d: np.ndarray | None = None
     """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
-    model ran: then they are ``keypoints3d``); offline both ways (the default,
+    model ran: then they are ``keypoints3d``); offline both ways (opt-in,
     :attr:`SmoothSettings.both_ways`), the average of the forward and backward passes' where
     both tracked the person."""
     exchanged: np.ndarray | None = None
