@@ -22,8 +22,9 @@ recording tracked both ways"). The cost is the second pass's steps.
 Opt-in (``SmoothSettings.both_ways`` is False by default): on the 24 runs it was found on it
 was worse on average (50.1 -> 51.8 mm) and one clean clip went 35 -> 74 mm, where the
 passes disagreed by 100+ mm over the first frames and the smoothed average of their poses
-was worse than either. Averaging the passes' smoothed keypoints (the prototype) did not do
-that; averaging only where the passes agree is another untried guard.
+was worse than either. Averaging only where the passes agree did not help (clean clips lose
+even where they agree on every frame); averaging the passes' *smoothed* keypoints (the
+prototype) did not show the loss and is the next thing to build.
 """
 
 from __future__ import annotations
