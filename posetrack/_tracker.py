@@ -1788,8 +1788,8 @@ class Tracker:
 
     def passes(self, frames: int) -> int:
         """How many times :meth:`run` goes through a recording of ``frames`` frames (its
-        progress counts each pass): 2 offline with :attr:`SmoothSettings.both_ways`, else 1."""
-        return 2 if self.mode == "offline" and self.motion.both_ways and frames > 1 else 1
+        progress counts each pass; :func:`run_passes`)."""
+        return run_passes(self.mode, self.motion, frames)
 
     def _track_backwards(
         self, out: _RunOutputs, depths, keypoints2d, confidence, groups: int, progress
@@ -1801,8 +1801,7 @@ class Tracker:
         tracker is left as the forward pass left it (its state after the last frame)."""
         T = len(depths)
         order = np.arange(T - 1, -1, -1)
-        after_forward = (self._snapshot(), self._person, self.exchanged.copy(), self._follower)
-        found_floor, flips = self._found_floor, self.reinit_flip_frames
+        after_forward = (self._snapshot(), self._person, self.exchanged.copy())
         self.reset()
         self._reset_motion()
         back = _RunOutputs.empty(T, groups)
@@ -1813,21 +1812,17 @@ class Tracker:
             self._run_frames_into(back, {}, 0, *views, progress, 0, T)
         finally:
             self._two_sided, self._run_frame = None, None
-        snap, self._person, self.exchanged, follower = after_forward
-        self._restore(snap)
-        self._follower = follower
-        self._found_floor, self.reinit_flip_frames = found_floor, flips
-        both = (
-            (out.status == TRACKED) & (back.status[order] == TRACKED)
-            & (out.person == back.person[order]) & (out.person >= 0)
-        )  # fmt: skip
+        snap, self._person, self.exchanged = after_forward
+        self._restore(snap)  # the follower, floor and flips too
+        # The backward rows in the recording's order, where both passes tracked one person.
+        both = (out.status == TRACKED) & (out.person >= 0)
+        both &= (back.status[order] == TRACKED) & (back.person[order] == out.person)
         if not both.any():
             return
-        params, kps = average_poses(
-            out.params[both], back.params[order][both], out.kp3[both], back.kp3[order][both]
-        )  # fmt: skip
+        at = order[both]  # the backward row of each such frame
+        params, kps = average_poses(out.params[both], back.params[at], out.kp3[both], back.kp3[at])
         out.params[both], out.kp3[both] = params, kps
-        out.conf[both] = 0.5 * (out.conf[both] + back.conf[order][both])
+        out.conf[both] = 0.5 * (out.conf[both] + back.conf[at])
         self.both_ways_frames = int(both.sum())
 
     def _snapshot(self) -> tuple:
@@ -1935,6 +1930,12 @@ class Tracker:
             p = follower.select(cands)
             follower.observe(cands, p)
             yield d, cands, p
+
+
+def run_passes(mode: str, motion: SmoothSettings, frames: int) -> int:
+    """Passes :meth:`Tracker.run` makes over ``frames`` frames in ``mode``: 2 offline with
+    :attr:`SmoothSettings.both_ways` (forwards, then backwards), else 1."""
+    return 2 if mode == "offline" and motion.both_ways and frames > 1 else 1
 
 
 def _share(progress: ProgressCallback, offset: int, total: int) -> ProgressCallback:

@@ -115,6 +115,7 @@ def _join_processes(args) -> tuple[int, int]:
 def track_many_command(args) -> int:
     from .. import io
     from .._many import track_many
+    from .._tracker import run_passes
     from ._cli import (
         _followed_detections,
         _lag,
@@ -133,7 +134,6 @@ def track_many_command(args) -> int:
     config = _tracker_config(args)
     mode = _mode(args)
     motion = _motion(args)
-    passes = 2 if mode == "offline" and motion.both_ways else 1  # progress counts each pass
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1, got {args.batch}")
     manifest = Path(args.manifest)
@@ -141,7 +141,7 @@ def track_many_command(args) -> int:
     out = Path(args.out)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise FileExistsError(f"{out}: exists and is not a folder")
-    settings = _settings(args, config, mode, mode == "offline" and motion.both_ways)
+    settings = _settings(args, config, mode, run_passes(mode, motion, 2) == 2)  # both ways?
     todo, skipped = [], []
     for row in rows:
         folder = out / row.name
@@ -231,7 +231,7 @@ def track_many_command(args) -> int:
     track_many(
         [loader(k) for k in order], config, batch=args.batch, seed=args.seed, mode=mode,
         progress=bar, errors="return",
-        total_frames=sum(r.frames * (passes if r.frames > 1 else 1) for r in todo),
+        total_frames=sum(r.frames * run_passes(mode, motion, r.frames) for r in todo),
         on_result=lambda i, res: finished(order[i], res),
         refine=_refine(args), lag=_lag(args), motion=motion,
     )  # fmt: skip
