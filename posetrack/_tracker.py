@@ -31,7 +31,7 @@ from ._associate import (
     other_people_mask,
 )
 from ._batcher import Pending, resolve
-from ._bothways import Reindexed, average_poses
+from ._bothways import Reindexed, fuse_smoothed, fuse_weights
 from ._camera import Intrinsics, project_host
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
@@ -373,6 +373,16 @@ class _RunOutputs:
     def put_span(self, start: int, span: dict[str, np.ndarray]) -> None:
         for name, v in span.items():
             getattr(self, name)[start : start + len(v)] = v
+
+
+def _along_rays(lm3: np.ndarray, has_d: np.ndarray, moved: np.ndarray | None) -> np.ndarray:
+    """The (T, 18, 3) landmarks with depth moved along their camera rays by ``moved`` (18,)
+    metres (a refined shape's change of surface offsets); unchanged where ``moved`` is None."""
+    if moved is None:
+        return lm3
+    norm = np.linalg.norm(lm3, axis=-1, keepdims=True)
+    ray = np.divide(lm3, norm, out=np.zeros_like(lm3), where=norm > 0)
+    return np.where(has_d[..., None], lm3 + moved[None, :, None] * ray, lm3)
 
 
 @dataclasses.dataclass
@@ -1431,8 +1441,9 @@ class Tracker:
             frames(progress, t, T)
         finally:
             self._two_sided, self._run_frame, self._as_detected = None, None, False
+        back = None
         if both_ways:
-            self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
+            back = self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
         kp3, params, delta, status, conf_out = out.kp3, out.params, out.delta, out.status, out.conf
         lm3, has_d, det, kp2, lm_conf = out.lm3, out.has_d, out.det, out.kp2, out.lm_conf
         person, num_people = out.person, out.num_people
@@ -1452,18 +1463,20 @@ class Tracker:
         if self.mode == "offline":
             valid = np.isfinite(kp3).all(axis=(1, 2))
             if n_keep and len(kept) >= _MIN_REFINE_FRAMES:
-                lm3 = self._refine_shape(list(kept.values()), params, kp2, lm_conf, lm3, has_d)
+                moved = self._refine_shape(list(kept.values()), params, kp2, lm_conf)
+                lm3 = _along_rays(lm3, has_d, moved)
+                if back is not None:
+                    back.lm3 = _along_rays(back.lm3, back.has_d, moved)
             if valid.any():
                 per_frame = kp3.copy()
-                lms = Landmarks(
-                    keypoints2d=kp2, confidence=lm_conf, points3d=lm3.astype(np.float32),
-                    detected=det, has_depth=has_d,
-                )  # fmt: skip
                 t0 = time.perf_counter()
-                smoothed, smoothed_kps, interpolated = smooth_sequence(
-                    self._smoother, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
-                    fps=self.fps, keypoints=kp3, pose_confidence=conf_out,
-                )  # fmt: skip
+                smoothed, smoothed_kps, interpolated = self._smooth_rows(
+                    params, kp3, conf_out, kp2, lm_conf, lm3, det, has_d, valid
+                )
+                if back is not None:
+                    smoothed, smoothed_kps = self._fuse_backwards(
+                        out, back, valid, smoothed, smoothed_kps
+                    )
                 params = np.where(valid[:, None], smoothed, params)
                 kp3 = np.where(valid[:, None, None], smoothed_kps, kp3)
                 self.smooth_s = time.perf_counter() - t0
@@ -1793,12 +1806,12 @@ class Tracker:
 
     def _track_backwards(
         self, out: _RunOutputs, depths, keypoints2d, confidence, groups: int, progress
-    ) -> None:
+    ) -> _RunOutputs:
         """Offline with :attr:`SmoothSettings.both_ways`: track the recording again from its
         last frame to its first (a fresh track, the person each frame's forward row followed,
-        their labels as the forward pass fitted them) and put the average of the two passes'
-        poses (:func:`average_poses`) into ``out`` where both tracked the same person. The
-        tracker is left as the forward pass left it (its state after the last frame)."""
+        their labels as the forward pass fitted them). Returns the backward pass's rows in the
+        recording's order. The tracker is left as the forward pass left it (its state after
+        the last frame)."""
         T = len(depths)
         order = np.arange(T - 1, -1, -1)
         after_forward = (self._snapshot(), self._person, self.exchanged.copy())
@@ -1814,16 +1827,49 @@ class Tracker:
             self._two_sided, self._run_frame = None, None
         snap, self._person, self.exchanged = after_forward
         self._restore(snap)  # the follower, floor and flips too
-        # The backward rows in the recording's order, where both passes tracked one person.
-        both = (out.status == TRACKED) & (out.person >= 0)
-        both &= (back.status[order] == TRACKED) & (back.person[order] == out.person)
-        if not both.any():
-            return
-        at = order[both]  # the backward row of each such frame
-        params, kps = average_poses(out.params[both], back.params[at], out.kp3[both], back.kp3[at])
-        out.params[both], out.kp3[both] = params, kps
-        out.conf[both] = 0.5 * (out.conf[both] + back.conf[at])
-        self.both_ways_frames = int(both.sum())
+        fields = dataclasses.fields(back)
+        return _RunOutputs(**{f.name: getattr(back, f.name)[order] for f in fields})
+
+    def _smooth_rows(
+        self, params, kp3, conf, kp2, lm_conf, lm3, det, has_d, valid
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """One pass's per-frame rows smoothed (:func:`smooth_sequence`): ``(params,
+        keypoints, interpolated)``."""
+        lms = Landmarks(
+            keypoints2d=kp2, confidence=lm_conf, points3d=lm3.astype(np.float32),
+            detected=det, has_depth=has_d,
+        )  # fmt: skip
+        return smooth_sequence(
+            self._smoother, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
+            fps=self.fps, keypoints=kp3, pose_confidence=conf,
+        )  # fmt: skip
+
+    def _fuse_backwards(
+        self, out: _RunOutputs, back: _RunOutputs, valid: np.ndarray, params, keypoints
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Offline both ways: smooth the backward pass as the forward one was and, in the
+        frames both passes have an estimate of the same person (either may have had no
+        observation there: both smoothed tracks bridge it), replace the forward pass's smoothed
+        poses by the fusion of the two smoothed tracks (:func:`fuse_smoothed`, the backward
+        pass's weight ramped in and out by :func:`fuse_weights`)."""
+        valid_b = np.isfinite(back.kp3).all(axis=(1, 2))
+        same = (out.person == back.person) | (out.person < 0) | (back.person < 0)
+        weight = fuse_weights(valid & valid_b & same)
+        fused = weight > 0
+        if not fused.any():
+            return params, keypoints
+        smoothed_b, kps_b, _ = self._smooth_rows(
+            back.params, back.kp3, back.conf, back.kp2, back.lm_conf, back.lm3, back.det,
+            back.has_d, valid_b,
+        )  # fmt: skip
+        p, k = fuse_smoothed(
+            self.shape, params[fused], smoothed_b[fused], keypoints[fused], kps_b[fused],
+            weight[fused],
+        )  # fmt: skip
+        params, keypoints = params.copy(), keypoints.copy()
+        params[fused], keypoints[fused] = p, k
+        self.both_ways_frames = int(fused.sum())
+        return params, keypoints
 
     def _snapshot(self) -> tuple:
         """The host-side state :meth:`update` carries from frame to frame in offline
@@ -1872,19 +1918,16 @@ class Tracker:
         self.refine_s = time.perf_counter() - t0
         self.shape = refined
 
-    def _refine_shape(self, kept, params, kp2, lm_conf, lm3, has_d) -> np.ndarray:
+    def _refine_shape(self, kept, params, kp2, lm_conf) -> np.ndarray | None:
         """Offline: refine :attr:`shape` on the ``kept`` frames ``(n3d, t, depth metres)``
-        (:meth:`_refine_on`). Returns the landmarks ``lm3`` moved along their rays by the
-        change of the surface offsets the new shape implies."""
+        (:meth:`_refine_on`). Returns the change of the 18 surface offsets the new shape
+        implies (metres; ``None`` without ``surface_offset``), for :func:`_along_rays`."""
         t = np.asarray([k[1] for k in kept])
         before = self.shape
         self._refine_on(params[t], np.stack([k[2] for k in kept]), kp2[t], lm_conf[t], t)
-        if self.config.surface_offset:
-            moved = np.asarray(surface_offsets(self.shape) - surface_offsets(before))
-            norm = np.linalg.norm(lm3, axis=-1, keepdims=True)
-            ray = np.divide(lm3, norm, out=np.zeros_like(lm3), where=norm > 0)
-            lm3 = np.where(has_d[..., None], lm3 + moved[None, :, None] * ray, lm3)
-        return lm3
+        if not self.config.surface_offset:
+            return None
+        return np.asarray(surface_offsets(self.shape) - surface_offsets(before))
 
     def _shape_frames(self, depths, keypoints2d, confidence, n: int) -> tuple[list, list, list]:
         """The followed person's observations in the first ``n`` frames, for

@@ -1,43 +1,95 @@
-"""The two passes' average (``_bothways.py``): poses half-way, the reversed view's reads.
+"""The two passes' fusion (``_bothways.py``): smoothed keypoints averaged, the pose fitted to
+them; the reversed view's reads.
 
 The tracker-level behaviour of ``SmoothSettings(both_ways=True)`` is checked in
 ``test_smooth.py`` beside the other modes (it reuses that module's tracked clip).
 """
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack._bothways import Reindexed, average_poses
-from posetrack._so3 import axis_angle, matrix_to_quat, quat_to_matrix
+from posetrack import _body as body
+from posetrack._bothways import FUSE_BLOCK, Reindexed, fuse_smoothed, fuse_weights
+from posetrack._so3 import axis_angle, matrix_to_quat
 
 
-def _params(root, angles_z):
-    """Poses with the root at ``root`` and every quaternion a rotation about z."""
-    T = len(angles_z)
-    p = np.zeros((T, 43))
-    p[:, :3] = root
-    for t, a in enumerate(angles_z):
-        q = matrix_to_quat(axis_angle(np.array([0.0, 0.0, 1.0]), a))
-        p[t, 3:] = np.tile(q, 10)
+def _bent_arms(angles: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    """(T, 43) poses facing the camera at 2.5 m, both elbows bent by ``angles`` (radians,
+    about the body's x axis), the root moved sideways by ``shift`` metres."""
+    p = np.tile(body.facing_camera_params_np(2.5), (len(angles), 1)).astype(np.float64)
+    p[:, 0] += shift
+    for t, a in enumerate(angles):
+        q = matrix_to_quat(axis_angle(np.array([1.0, 0.0, 0.0]), a))
+        p[t, 15:19] = q  # right elbow
+        p[t, 23:27] = q  # left elbow
     return p
 
 
-def test_average_poses_halves_positions_and_rotations():
-    a = _params([0.0, 0.0, 2.0], [0.0, 0.2])
-    b = _params([0.2, -0.1, 3.0], [np.pi / 2, 0.6])
-    b[1, 7:11] *= -1  # the same rotation written as -q: the shorter arc is still taken
-    ka = np.random.default_rng(0).normal(size=(2, 18, 3))
-    kb = np.random.default_rng(1).normal(size=(2, 18, 3))
-    params, kps = average_poses(a, b, ka, kb)
-    np.testing.assert_allclose(params[:, :3], [[0.1, -0.05, 2.5]] * 2)
-    np.testing.assert_allclose(kps, (ka + kb) / 2)
-    for t, want in enumerate([np.pi / 4, 0.4]):
-        for j in range(10):
-            R = quat_to_matrix(params[t, 3 + 4 * j : 7 + 4 * j])
-            np.testing.assert_allclose(R, axis_angle(np.array([0.0, 0.0, 1.0]), want), atol=1e-9)
-    # The inputs are not changed.
-    np.testing.assert_array_equal(a[:, :3], [[0.0, 0.0, 2.0]] * 2)
+def _keypoints(shape, params):
+    return np.asarray(
+        jax.vmap(lambda x: body.keypoints(shape, x))(jnp.asarray(params, jnp.float32))
+    )
+
+
+def test_fuse_smoothed_fits_the_pose_to_the_average_of_the_two_tracks():
+    """More frames than one block (padding, two calls of the compiled fit): the fused keypoints
+    are the model keypoints of the fused poses and lie near the two tracks' average (not on it
+    everywhere: the average of two bent arms' elbows and wrists is not an arm of the same
+    bone lengths, so the fit compromises, by 12 mm at most here)."""
+    shape = pt.BodyShape.default()
+    T = FUSE_BLOCK + 6
+    a = _bent_arms(np.linspace(0.2, 0.6, T))
+    b = _bent_arms(np.linspace(0.8, 1.4, T), shift=0.02)
+    ka, kb = _keypoints(shape, a), _keypoints(shape, b)
+    params, kps = fuse_smoothed(shape, a, b, ka, kb)
+    assert params.shape == (T, 43) and kps.shape == (T, 18, 3)
+    np.testing.assert_allclose(kps, _keypoints(shape, params), atol=1e-5)
+    target = 0.5 * (ka + kb)
+    err = np.linalg.norm(kps - target, axis=-1)
+    assert err.mean() < 0.003 and err.max() < 0.02, (err.mean(), err.max())  # metres
+    # Not either input, nor their mean pose's keypoints the trivial way round.
+    assert np.linalg.norm(kps - ka, axis=-1).max() > 0.05
+    assert np.linalg.norm(kps - kb, axis=-1).max() > 0.05
+    np.testing.assert_allclose(np.linalg.norm(params[:, 3:].reshape(T, 10, 4), axis=-1), 1.0,
+                               atol=1e-5)  # fmt: skip
+
+
+def test_fuse_smoothed_of_one_track_twice_is_that_track():
+    shape = pt.BodyShape.default()
+    a = _bent_arms(np.linspace(0.1, 1.2, 9))
+    ka = _keypoints(shape, a)
+    params, kps = fuse_smoothed(shape, a, a, ka, ka)
+    np.testing.assert_allclose(kps, ka, atol=1e-4)
+
+
+def test_fuse_smoothed_weighs_the_second_track_as_asked():
+    """Weight 0 gives the first track, 1 the second; the weight is per frame."""
+    shape = pt.BodyShape.default()
+    a = _bent_arms(np.full(3, 0.3))
+    b = _bent_arms(np.full(3, 0.9))
+    ka, kb = _keypoints(shape, a), _keypoints(shape, b)
+    _, kps = fuse_smoothed(shape, a, b, ka, kb, np.array([0.0, 1.0, 0.5]))
+    np.testing.assert_allclose(kps[0], ka[0], atol=1e-4)
+    np.testing.assert_allclose(kps[1], kb[1], atol=1e-4)
+    wrist = 4  # right wrist: between the two, neither
+    assert (
+        0.3
+        < np.linalg.norm(kps[2, wrist] - ka[2, wrist]) / np.linalg.norm(kb[2, wrist] - ka[2, wrist])
+        < 0.7
+    )
+
+
+def test_fuse_weights_ramp_in_and_out_next_to_frames_not_shared():
+    shared = np.ones(14, bool)
+    shared[[0, 7]] = False
+    w = fuse_weights(shared, ramp=3)
+    want = [0, 1 / 3, 2 / 3, 1, 1, 2 / 3, 1 / 3, 0, 1 / 3, 2 / 3, 1, 1, 1, 1]
+    np.testing.assert_allclose(w, 0.5 * np.asarray(want))
+    np.testing.assert_array_equal(fuse_weights(np.ones(4, bool)), 0.5)
+    np.testing.assert_array_equal(fuse_weights(np.zeros(3, bool)), 0.0)
 
 
 def test_reindexed_reads_only_what_is_asked_in_the_order_given():
