@@ -1,4 +1,4 @@
-"""The offline recording tracked both ways: forwards and backwards, the two passes averaged.
+"""The offline recording tracked both ways: forwards and backwards, the two tracks fused.
 
 Every per-frame track is one random walk among many the MHT could take: its landmark
 subsets are drawn at random, and a wrong turn (a limb locked onto the other side, a
@@ -12,19 +12,18 @@ against 50.7 forwards alone; two forward tracks of different seeds averaged, 49.
 :meth:`Tracker.run` offline with :attr:`SmoothSettings.both_ways` runs the per-frame
 tracker a second time, from the last frame to the first (a fresh track of the person the
 forward pass followed in each frame, with the left/right labels the forward pass fitted),
-and averages the two passes' per-frame estimates (:func:`average_poses`: keypoints and root
-position averaged, joint rotations half-way by slerp, confidences averaged) in the frames
-both tracked with the same person; the motion model then smooths the average once. On 24
-fresh tuning runs with three tracker seeds each, D fell by 2.5 mm (t -2.6), by 3.8-6.8 mm
-a group under occlusion and within 0.4 mm clean (benchmarks/README.md, "Offline: the
-recording tracked both ways"). The cost is the second pass's steps.
+smooths each pass, and fuses the two smoothed tracks (:func:`fuse_smoothed`): their
+keypoints averaged in the frames both have an estimate of the same person (the backward
+pass's weight ramping in and out next to frames they do not share, :func:`fuse_weights`),
+the pose fitted to the average. The cost is the second pass's steps and a second smoother
+pass.
 
-Opt-in (``SmoothSettings.both_ways`` is False by default): on the 24 runs it was found on it
-was worse on average (50.1 -> 51.8 mm) and one clean clip went 35 -> 74 mm, where the
-passes disagreed by 100+ mm over the first frames and the smoothed average of their poses
-was worse than either. Averaging only where the passes agree did not help (clean clips lose
-even where they agree on every frame); averaging the passes' *smoothed* keypoints (the
-prototype) did not show the loss and is the next thing to build.
+A first version averaged the two passes' per-frame poses (keypoints, half-way joint
+rotations) and smoothed once: on the clips the idea was found on it was worse than one way
+(50.1 -> 51.8 mm; a clean squat 35 -> 74 mm, where the half-way pose of two passes reaching
+the same keypoints with different joint twists was far from both). What each version
+measured: benchmarks/README.md, "Offline: the recording tracked both ways" and "Offline both
+ways, second fusion".
 """
 
 from __future__ import annotations
@@ -39,7 +38,6 @@ from jaxtyping import Array, Float
 from . import _body as body
 from ._programs import program
 from ._smooth import pose_from_keypoints
-from ._so3 import slerp
 
 #: Frames fitted per call of :func:`fit_poses` (padded: one compiled program for any length).
 FUSE_BLOCK = 64
@@ -49,8 +47,8 @@ FUSE_BLOCK = 64
 #: acceleration error; 10 steps came within 1.3 mm, 30 no closer.
 FUSE_ITERATIONS = 10
 
-#: Frames over which the backward pass's weight rises from 0 to one half next to a frame the
-#: passes do not share (so the fused track does not jump where fusing starts or stops).
+#: Frames over which the backward pass's weight rises from 0 to one half next to a frame of
+#: the forward pass's alone (so the fused track does not jump where fusing starts or stops).
 FUSE_RAMP = 5
 
 
@@ -67,29 +65,6 @@ class Reindexed(Sequence):
         if isinstance(i, slice):
             return [self._frames[int(j)] for j in self._indices[i]]
         return self._frames[int(self._indices[i])]
-
-
-def average_poses(
-    params_a: np.ndarray, params_b: np.ndarray, keypoints_a: np.ndarray, keypoints_b: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The half-way pose of two estimates of the same frames.
-
-    Args:
-        params_a, params_b: ``(T, 43)`` poses (root xyz, root quaternion, 9 joint
-            quaternions, wxyz).
-        keypoints_a, keypoints_b: ``(T, 18, 3)`` their keypoints, metres.
-
-    Returns:
-        ``(params, keypoints)``: the root positions and keypoints averaged, each quaternion
-        half-way along the shorter arc (:func:`posetrack._so3.slerp`).
-    """
-    a, b = np.asarray(params_a, np.float64), np.asarray(params_b, np.float64)
-    out = a.copy()
-    out[:, :3] = 0.5 * (a[:, :3] + b[:, :3])
-    qa, qb = a[:, 3:].reshape(-1, 10, 4), b[:, 3:].reshape(-1, 10, 4)
-    out[:, 3:] = slerp(qa, qb, 0.5).reshape(-1, 40)
-    kps = 0.5 * (np.asarray(keypoints_a, np.float64) + np.asarray(keypoints_b, np.float64))
-    return out, kps
 
 
 @program("fit_poses", static_argnums=(0,))
@@ -116,9 +91,9 @@ def fuse_smoothed(
     """The two passes' smoothed tracks of the same frames fused: their keypoints averaged
     (``weight_b`` on the second, per frame or for all) and the pose fitted to the average
     (:data:`FUSE_ITERATIONS` steps) from each pass's pose, the closer fit kept frame by frame.
-    (Not from the half-way pose of :func:`average_poses`: two passes can reach the same
-    keypoints with different joint twists, and half-way between them was 81 mm off on the
-    squat that showed it.)
+    (Not from the half-way pose of the two, each rotation by slerp: two passes can reach the
+    same keypoints with different joint twists, and half-way between them was 81 mm off on
+    the squat that showed it.)
 
     Returns:
         ``(params, keypoints)``: ``(T, 43)`` float32 and ``(T, 18, 3)``, the fitted poses
@@ -154,17 +129,20 @@ def _fit_blocks(
     return params, kps
 
 
-def fuse_weights(shared: np.ndarray, ramp: int = FUSE_RAMP) -> np.ndarray:
+def fuse_weights(shared: np.ndarray, forward: np.ndarray, ramp: int = FUSE_RAMP) -> np.ndarray:
     """The backward pass's weight in each frame (:func:`fuse_smoothed`'s ``weight_b``): one
     half in the frames both passes share (``shared``, (T,) bool), rising linearly over
-    ``ramp`` frames from 0 next to each frame they do not share; 0 where not shared."""
+    ``ramp`` frames from 0 next to each frame the forward pass alone estimates (``forward``
+    and not ``shared``); 0 where not shared. Next to a frame without any estimate there is
+    no ramp: the track is broken there either way, and a ramp between two passes that
+    disagree by half a metre shook the fused track by 50 mm/frame^2 at its ends."""
     shared = np.asarray(shared, bool)
     T = len(shared)
-    off = np.flatnonzero(~shared)
+    off = np.flatnonzero(np.asarray(forward, bool) & ~shared)
     if len(off) == 0:
         return np.full(T, 0.5)
     t = np.arange(T)
     # Distance in frames to the nearest frame not shared.
     i = np.clip(np.searchsorted(off, t), 1, len(off)) - 1
     near = np.minimum(np.abs(t - off[i]), np.abs(t - off[np.minimum(i + 1, len(off) - 1)]))
-    return 0.5 * np.minimum(1.0, near / ramp)
+    return np.where(shared, 0.5 * np.minimum(1.0, near / ramp), 0.0)

@@ -123,13 +123,11 @@ class SmoothSettings:
     outlier_frames: int = 3
     """See ``outlier_distance``."""
     both_ways: bool = False
-    """Offline: track the recording a second time, from the last frame to the first, and
-    smooth the average of the two passes' per-frame poses (:mod:`posetrack._bothways`);
-    costs a second per-frame pass (``posetrack track --both-ways``). Opt-in: it passed its
-    rule (fresh tuning clips D -2.5 mm, t -2.6 over three tracker seeds; report sets -0.5 to
-    -2.9 mm but for real motion clean, +0.25), but on the clips it was found on one clean run
-    went 35 -> 74 mm where the passes disagree grossly (averaging a pose facing the wrong way
-    with the right one; benchmarks/README.md, "Offline: the recording tracked both ways")."""
+    """Offline: track the recording a second time, from the last frame to the first, smooth
+    each pass and fuse the two smoothed tracks (their keypoints averaged, the pose fitted to
+    the average; :mod:`posetrack._bothways`); costs a second per-frame pass and a second
+    smoother pass (``posetrack track --both-ways``). See benchmarks/README.md, "Offline both
+    ways, second fusion", for what it was measured to do."""
 
     def __post_init__(self):
         if not (self.accel_std > 0 and self.landmark_std > 0):

@@ -180,9 +180,9 @@ class TrackResult:
     """(T,) int: people detected in each frame (with at least one keypoint)."""
     per_frame_keypoints3d: np.ndarray | None = None
     """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
-    model ran: then they are ``keypoints3d``); offline both ways (opt-in,
-    :attr:`SmoothSettings.both_ways`), the average of the forward and backward passes' where
-    both tracked the person."""
+    model ran: then they are ``keypoints3d``); offline both ways
+    (:attr:`SmoothSettings.both_ways`), the forward pass's (the backward pass is fused in
+    after smoothing)."""
     exchanged: np.ndarray | None = None
     """(T, groups) bool: where the detector's left and right keypoints of each
     ``sides.groups`` group (default arms, legs) were exchanged back before fitting
@@ -1854,7 +1854,7 @@ class Tracker:
         pass's weight ramped in and out by :func:`fuse_weights`)."""
         valid_b = np.isfinite(back.kp3).all(axis=(1, 2))
         same = (out.person == back.person) | (out.person < 0) | (back.person < 0)
-        weight = fuse_weights(valid & valid_b & same)
+        weight = fuse_weights(valid & valid_b & same, valid)
         fused = weight > 0
         if not fused.any():
             return params, keypoints

@@ -82,14 +82,19 @@ def test_fuse_smoothed_weighs_the_second_track_as_asked():
     )
 
 
-def test_fuse_weights_ramp_in_and_out_next_to_frames_not_shared():
+def test_fuse_weights_ramp_in_and_out_next_to_the_forward_pass_alone():
     shared = np.ones(14, bool)
     shared[[0, 7]] = False
-    w = fuse_weights(shared, ramp=3)
+    forward = np.ones(14, bool)
+    w = fuse_weights(shared, forward, ramp=3)
     want = [0, 1 / 3, 2 / 3, 1, 1, 2 / 3, 1 / 3, 0, 1 / 3, 2 / 3, 1, 1, 1, 1]
     np.testing.assert_allclose(w, 0.5 * np.asarray(want))
-    np.testing.assert_array_equal(fuse_weights(np.ones(4, bool)), 0.5)
-    np.testing.assert_array_equal(fuse_weights(np.zeros(3, bool)), 0.0)
+    # Next to a frame nobody estimates (a broken track): no ramp.
+    forward[7] = False
+    want = [0, 1 / 3, 2 / 3, 1, 1, 1, 1, 0, 1, 1, 1, 1, 1, 1]
+    np.testing.assert_allclose(fuse_weights(shared, forward, ramp=3), 0.5 * np.asarray(want))
+    np.testing.assert_array_equal(fuse_weights(np.ones(4, bool), np.ones(4, bool)), 0.5)
+    np.testing.assert_array_equal(fuse_weights(np.zeros(3, bool), np.ones(3, bool)), 0.0)
 
 
 def test_reindexed_reads_only_what_is_asked_in_the_order_given():
