@@ -298,3 +298,18 @@ def test_summary_rewrite_removes_a_killed_writers_temporary_file(tmp_path):
     assert data["counts"] == {"done": 1, "failed": 0, "pending": 1}
     assert not orphan.exists() and other.is_dir()
     assert json.loads((tmp_path / "summary.json").read_text()) == data
+
+
+def test_resume_settings_name_the_both_ways_fusion():
+    """A re-run skips only recordings tracked as it would track them: one-way results carry
+    no ``both_ways`` key (older one-way results still match), both-ways results name the
+    fusion, so those of the first fusion (recorded as ``true``) do not match."""
+    from types import SimpleNamespace
+
+    from posetrack.app._many import _settings
+
+    args, config = SimpleNamespace(seed=3), pt.TrackerConfig()
+    one = _settings(args, config, "offline")
+    both = _settings(args, config, "offline", both_ways=True)
+    assert "both_ways" not in one and {k: v for k, v in both.items() if k != "both_ways"} == one
+    assert both["both_ways"] not in (True, False, None)

@@ -36,9 +36,10 @@ _BUILDING = re.compile(r"\.(.+)\.(?:[A-Za-z0-9_]{8}|[0-9a-f]{12}\.old)\.tmp")
 
 def _settings(args, config, mode: str, both_ways: bool = False) -> dict[str, Any]:
     """What a finished recording must have been tracked with to be skipped on a re-run
-    (``both_ways`` only where on: one-way results of older versions still match)."""
+    (``both_ways`` only where on: one-way results of older versions still match; its value
+    names the fusion, so results of the first one, recorded as ``true``, are tracked again)."""
     out = {"method": config.method, "hypotheses": config.n, "mode": mode, "seed": args.seed}
-    return {**out, "both_ways": True} if both_ways else out
+    return {**out, "both_ways": "smoothed tracks fused"} if both_ways else out
 
 
 def _done(folder: Path) -> dict | None:
