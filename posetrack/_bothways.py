@@ -140,9 +140,9 @@ def fuse_weights(shared: np.ndarray, forward: np.ndarray, ramp: int = FUSE_RAMP)
     T = len(shared)
     off = np.flatnonzero(np.asarray(forward, bool) & ~shared)
     if len(off) == 0:
-        return np.full(T, 0.5)
+        return np.where(shared, 0.5, 0.0)
     t = np.arange(T)
-    # Distance in frames to the nearest frame not shared.
+    # Distance in frames to the nearest frame of the forward pass alone.
     i = np.clip(np.searchsorted(off, t), 1, len(off)) - 1
     near = np.minimum(np.abs(t - off[i]), np.abs(t - off[np.minimum(i + 1, len(off) - 1)]))
     return np.where(shared, 0.5 * np.minimum(1.0, near / ramp), 0.0)

@@ -95,6 +95,9 @@ def test_fuse_weights_ramp_in_and_out_next_to_the_forward_pass_alone():
     np.testing.assert_allclose(fuse_weights(shared, forward, ramp=3), 0.5 * np.asarray(want))
     np.testing.assert_array_equal(fuse_weights(np.ones(4, bool), np.ones(4, bool)), 0.5)
     np.testing.assert_array_equal(fuse_weights(np.zeros(3, bool), np.ones(3, bool)), 0.0)
+    # Shared frames between frames nobody estimates: one half, no ramp; the others 0.
+    shared, forward = np.array([0, 1, 1, 0], bool), np.array([0, 1, 1, 0], bool)
+    np.testing.assert_array_equal(fuse_weights(shared, forward), [0.0, 0.5, 0.5, 0.0])
 
 
 def test_reindexed_reads_only_what_is_asked_in_the_order_given():
