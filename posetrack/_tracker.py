@@ -1464,15 +1464,13 @@ class Tracker:
             valid = np.isfinite(kp3).all(axis=(1, 2))
             if n_keep and len(kept) >= _MIN_REFINE_FRAMES:
                 moved = self._refine_shape(list(kept.values()), params, kp2, lm_conf)
-                lm3 = _along_rays(lm3, has_d, moved)
-                if back is not None:
-                    back.lm3 = _along_rays(back.lm3, back.has_d, moved)
+                for rows in (out,) if back is None else (out, back):
+                    rows.lm3 = _along_rays(rows.lm3, rows.has_d, moved)
+                lm3 = out.lm3
             if valid.any():
                 per_frame = kp3.copy()
                 t0 = time.perf_counter()
-                smoothed, smoothed_kps, interpolated = self._smooth_rows(
-                    params, kp3, conf_out, kp2, lm_conf, lm3, det, has_d, valid
-                )
+                smoothed, smoothed_kps, interpolated = self._smooth_rows(out, valid)
                 if back is not None:
                     smoothed, smoothed_kps = self._fuse_backwards(
                         out, back, valid, smoothed, smoothed_kps
@@ -1831,17 +1829,17 @@ class Tracker:
         return _RunOutputs(**{f.name: getattr(back, f.name)[order] for f in fields})
 
     def _smooth_rows(
-        self, params, kp3, conf, kp2, lm_conf, lm3, det, has_d, valid
+        self, rows: _RunOutputs, valid: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """One pass's per-frame rows smoothed (:func:`smooth_sequence`): ``(params,
-        keypoints, interpolated)``."""
+        """One pass's per-frame rows smoothed where ``valid`` (:func:`smooth_sequence`):
+        ``(params, keypoints, interpolated)``."""
         lms = Landmarks(
-            keypoints2d=kp2, confidence=lm_conf, points3d=lm3.astype(np.float32),
-            detected=det, has_depth=has_d,
+            keypoints2d=rows.kp2, confidence=rows.lm_conf,
+            points3d=rows.lm3.astype(np.float32), detected=rows.det, has_depth=rows.has_d,
         )  # fmt: skip
         return smooth_sequence(
-            self._smoother, self.shape, self.intrinsics, np.nan_to_num(params), lms, valid,
-            fps=self.fps, keypoints=kp3, pose_confidence=conf,
+            self._smoother, self.shape, self.intrinsics, np.nan_to_num(rows.params), lms,
+            valid, fps=self.fps, keypoints=rows.kp3, pose_confidence=rows.conf,
         )  # fmt: skip
 
     def _fuse_backwards(
@@ -1858,10 +1856,7 @@ class Tracker:
         fused = weight > 0
         if not fused.any():
             return params, keypoints
-        smoothed_b, kps_b, _ = self._smooth_rows(
-            back.params, back.kp3, back.conf, back.kp2, back.lm_conf, back.lm3, back.det,
-            back.has_d, valid_b,
-        )  # fmt: skip
+        smoothed_b, kps_b, _ = self._smooth_rows(back, valid_b)
         p, k = fuse_smoothed(
             self.shape, params[fused], smoothed_b[fused], keypoints[fused], kps_b[fused],
             weight[fused],

@@ -510,8 +510,8 @@ def _add_passes_options(p: argparse.ArgumentParser) -> None:
     passes.add_argument(
         "--both-ways", dest="both_ways", action="store_const", const=True, default=None,
         help="offline: track the recording a second time, from the last frame back to the "
-        "first, and smooth the average of the two passes (lower error where one pass goes "
-        f"wrong, mostly under occlusion; twice the tracking steps). Default: {default}",
+        "first, smooth each pass and fuse the two (lower error where one pass goes wrong, "
+        f"mostly under occlusion; twice the tracking steps). Default: {default}",
     )  # fmt: skip
     passes.add_argument(
         "--one-way", dest="both_ways", action="store_const", const=False,
