@@ -151,6 +151,10 @@ def settings(variant: str) -> dict:
                 raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "bothways":
         return {"motion": pt.SmoothSettings(both_ways=True)}
+    if variant == "crossfade":
+        return {"motion": pt.SmoothSettings(crossfade=True)}
+    if variant == "bothways-crossfade":
+        return {"motion": pt.SmoothSettings(both_ways=True, crossfade=True)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -173,7 +177,8 @@ def settings(variant: str) -> dict:
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
-        "'bothways', 'kept', 'settleN', 'bandM', 'confX', 'farX', 'sides:G+G...'"
+        "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
+        "'farX', 'sides:G+G...'"
     )
 
 

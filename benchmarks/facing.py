@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from seeds import TUNING_SEEDS, parse_seeds
+from seeds import TUNING_SEEDS, TUNING_TEXT, parse_seeds
 from tune import real_motion
 
 import posetrack as pt
@@ -119,7 +119,7 @@ def main() -> int:
     else:
         seeds = parse_seeds(a.seeds)
         if not all(s in TUNING_SEEDS for s in seeds):
-            ap.error(f"--seeds: tuning seeds only ({TUNING_SEEDS.start}-{TUNING_SEEDS.stop - 1})")
+            ap.error(f"--seeds: tuning seeds only ({TUNING_TEXT})")
         runs, t0 = [], time.perf_counter()
         for seed in seeds[a.part :: a.parts]:
             for run in track_clip(seed, a.occlusion, a.keep, a.neck):

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from accuracy import REAL as REPORT_REAL
-from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds
+from seeds import REPORT_SEEDS, TUNING_SEEDS, TUNING_TEXT, parse_seeds
 from tune import REAL
 
 import posetrack as pt
@@ -151,9 +151,11 @@ def main() -> int:
     if not a.out:
         ap.error("--out is required (or --compare)")
     seeds = parse_seeds(a.seeds)
-    allowed = REPORT_SEEDS if a.kind == "report-real" else TUNING_SEEDS
+    report = a.kind == "report-real"
+    allowed = REPORT_SEEDS if report else TUNING_SEEDS
     if not all(s in allowed for s in seeds):
-        ap.error(f"--seeds: --kind {a.kind} takes seeds {allowed.start}-{allowed.stop - 1} only")
+        words = f"{REPORT_SEEDS.start}-{REPORT_SEEDS.stop - 1}" if report else TUNING_TEXT
+        ap.error(f"--seeds: --kind {a.kind} takes seeds {words} only")
     t0 = time.perf_counter()
     with open(a.out, "a") as f:
         for seed in seeds:

@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from seeds import REPORT_SEEDS, TUNING_SEEDS, parse_seeds  # benchmarks/seeds.py
+from seeds import REPORT_SEEDS, TUNING_SEEDS, TUNING_TEXT, parse_seeds  # benchmarks/seeds.py
 
 import posetrack as pt
 from posetrack.app import machine_info
@@ -149,7 +149,7 @@ def check_seeds(seeds) -> None:
         where = " (a reported seed)" if any(s in REPORT_SEEDS for s in bad) else ""
         raise ValueError(
             f"tune.py: seeds {bad} are not tuning seeds{where}; tuning uses only "
-            f"TUNING_SEEDS = range({TUNING_SEEDS.start}, {TUNING_SEEDS.stop}) (benchmarks/seeds.py)"
+            f"TUNING_SEEDS ({TUNING_TEXT}, benchmarks/seeds.py)"
         )
 
 

@@ -109,8 +109,14 @@ class SmoothSettings:
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
-    """Frames each window shares with the next (offline); the first and last ``overlap // 2``
-    of a window are taken from its neighbours."""
+    """Frames each window shares with the next (offline). See ``crossfade``."""
+    crossfade: bool = False
+    """Offline: how two windows' solutions meet in the frames they share. ``False``: a cut
+    at the middle of the overlap (the first and last ``overlap // 2`` frames of a window are
+    taken from its neighbours); where the two solutions disagree the track jumps there.
+    ``True``: a linear cross-fade over the whole overlap (the poses blended, quaternions by
+    normalised linear interpolation, and their keypoints the model's), each window weighed
+    least next to its own edge."""
     outlier_distance: float = 0.15
     """Offline start: a limb's per-frame pose is an outlier at frame t when its elbow or wrist
     (knee or ankle) lies farther than this, metres, from the median of its positions over
@@ -509,14 +515,18 @@ def smooth_sequence(
     T = len(params)
     conf = np.ones((T, 18), np.float32) if pose_confidence is None else pose_confidence
     params, interpolated = interpolated_start(settings, params, keypoints, conf, valid)
-    W, step = settings.window, settings.window - settings.overlap
-    half = settings.overlap // 2
+    W, overlap = settings.window, settings.overlap
+    step = W - overlap
+    half = overlap // 2
+    fade = crossfade_weights(overlap) if settings.crossfade else np.zeros(overlap, np.float32)
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
     kps_in = np.where(valid[:, None, None], np.nan_to_num(np.asarray(keypoints, np.float32)), 0.0)
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
     out = params.copy()
     out_kps = np.zeros((T, 18, 3), np.float32)
     fps_arr = jnp.asarray(fps, jnp.float32)
+    previous = np.zeros((W, 43), np.float32)  # the last window's poses of the shared frames
+    previous_weight = np.zeros(W, np.float32)
     start = 0
     while True:
         stop = min(start + W, T)
@@ -531,10 +541,16 @@ def smooth_sequence(
             settings, shape, intrinsics, jnp.asarray(pad(safe)),
             jax.tree.map(lambda x: jnp.asarray(pad(x)), lm), jnp.asarray(pad(valid)), fps_arr,
             jnp.asarray(pad(conf)), jnp.asarray(pad(kps_in)),
+            jnp.asarray(previous), jnp.asarray(previous_weight),
         )  # fmt: skip
         smoothed, kps = np.asarray(smoothed)[:n], np.asarray(kps)[:n]
-        first = 0 if start == 0 else half
-        last = n if stop == T else n - half
+        if settings.crossfade:  # this window's frames, the shared ones blended in the program
+            first, last = 0, n
+            if stop < T:
+                previous[:overlap], previous_weight[:overlap] = smoothed[step:], fade
+        else:
+            first = 0 if start == 0 else half
+            last = n if stop == T else n - half
         keep = np.arange(first, last)
         out[start + keep] = np.where(
             valid[start + keep, None], smoothed[keep], params[start + keep]
@@ -556,10 +572,14 @@ def smooth_window_program(
     fps: Float[Array, ""],
     pose_confidence: Float[Array, "frame kpt"],
     keypoints: Float[Array, "frame kpt 3"],
+    previous: Float[Array, "frame 43"],
+    previous_weight: Float[Array, " frame"],
 ) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
     """One window of :func:`smooth_sequence` as one compiled program: each frame's consensus
-    landmarks, :func:`smooth_window`, and the keypoints of the smoothed poses (of the valid
-    frames; the others' are those of ``params``). Any recording length reuses it."""
+    landmarks, :func:`smooth_window`, the smoothed poses blended with ``previous`` (the last
+    window's, where ``previous_weight`` > 0: :func:`blend_params`; valid frames only), and
+    the keypoints of those poses (of the valid frames; the others' are those of ``params``).
+    Any recording length reuses it."""
     use3d, use2d = consensus_masks(
         shape, intrinsics, params, landmarks, settings.consensus_distance, keypoints=keypoints
     )
@@ -567,7 +587,31 @@ def smooth_window_program(
         settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps,
         pose_confidence, targets=keypoints,
     )  # fmt: skip
+    w = jnp.where(valid, previous_weight, 0.0)[:, None]
+    P = jnp.where(w > 0, blend_params(previous, P, w), P)
     return P, jax.vmap(lambda p: body.keypoints(shape, p))(P)
+
+
+def crossfade_weights(overlap: int) -> np.ndarray:
+    """The earlier window's weight over the ``overlap`` frames two offline windows share:
+    ``1 - (i + 1) / (overlap + 1)``, from near 1 down to near 0 (each window weighed least
+    next to its own edge, where its solution knows the least)."""
+    return (1.0 - np.arange(1, overlap + 1) / (overlap + 1)).astype(np.float32)
+
+
+def blend_params(
+    a: Float[Array, "*batch 43"], b: Float[Array, "*batch 43"], weight_a: Float[Array, "*batch 1"]
+) -> Float[Array, "*batch 43"]:
+    """``weight_a`` of pose ``a`` and the rest of ``b``: the root positions interpolated
+    linearly, each quaternion by normalised linear interpolation along the shorter arc."""
+    q_a = a[..., 3:].reshape(*a.shape[:-1], 10, 4)
+    q_b = b[..., 3:].reshape(*b.shape[:-1], 10, 4)
+    w = weight_a[..., None]
+    q_a = jnp.where(jnp.sum(q_a * q_b, axis=-1, keepdims=True) < 0, -q_a, q_a)
+    q = w * q_a + (1 - w) * q_b
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    xyz = weight_a * a[..., :3] + (1 - weight_a) * b[..., :3]
+    return jnp.concatenate([xyz, q.reshape(*q.shape[:-2], 40)], axis=-1)
 
 
 class OnlineWindow(eqx.Module):

@@ -849,6 +849,7 @@ class Tracker:
             return [(smooth_window_program, (
                 self._smoother, shape, intr, f32((W, 43)), window_lm,
                 jax.ShapeDtypeStruct((W,), bool), f32(()), f32((W, 18)), f32((W, 18, 3)),
+                f32((W, 43)), f32((W,)),
             ))]  # fmt: skip
 
         def refine_jobs() -> list:  # the body-shape refinement (after the first frames)
