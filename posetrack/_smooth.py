@@ -110,13 +110,14 @@ class SmoothSettings:
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16
     """Frames each window shares with the next (offline). See ``crossfade``."""
-    crossfade: bool = False
-    """Offline: how two windows' solutions meet in the frames they share. ``False``: a cut
-    at the middle of the overlap (the first and last ``overlap // 2`` frames of a window are
-    taken from its neighbours); where the two solutions disagree the track jumps there.
-    ``True``: a linear cross-fade over the whole overlap (the poses blended, quaternions by
-    normalised linear interpolation, and their keypoints the model's), each window weighed
-    least next to its own edge."""
+    crossfade: bool = True
+    """Offline: how two windows' solutions meet in the frames they share. ``True`` (the
+    default since 2026-12-02): a linear cross-fade over the whole overlap (the poses blended,
+    quaternions by normalised linear interpolation, and their keypoints the model's), each
+    window weighed least next to its own edge. ``False`` (before): a cut at the middle of the
+    overlap (the first and last ``overlap // 2`` frames of a window are taken from its
+    neighbours); where the two solutions disagree the track jumps there. Decided by a rule
+    written before its runs (benchmarks/README.md, "Offline window seams")."""
     outlier_distance: float = 0.15
     """Offline start: a limb's per-frame pose is an outlier at frame t when its elbow or wrist
     (knee or ankle) lies farther than this, metres, from the median of its positions over
@@ -587,8 +588,21 @@ def smooth_window_program(
         settings, shape, intrinsics, params, landmarks, use3d, use2d, valid, fps,
         pose_confidence, targets=keypoints,
     )  # fmt: skip
+    return blend_window(shape, P, valid, previous, previous_weight)
+
+
+def blend_window(
+    shape: body.BodyShape,
+    params: Float[Array, "frame 43"],
+    valid: Bool[Array, " frame"],
+    previous: Float[Array, "frame 43"],
+    previous_weight: Float[Array, " frame"],
+) -> tuple[Float[Array, "frame 43"], Float[Array, "frame kpt 3"]]:
+    """A window's poses with ``previous`` blended in where ``previous_weight`` > 0 and the
+    frame is ``valid`` (:func:`blend_params`; elsewhere ``params`` as they are), and the
+    keypoints of the result."""
     w = jnp.where(valid, previous_weight, 0.0)[:, None]
-    P = jnp.where(w > 0, blend_params(previous, P, w), P)
+    P = jnp.where(w > 0, blend_params(previous, params, w), params)
     return P, jax.vmap(lambda p: body.keypoints(shape, p))(P)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack import _limbs, _smooth, _tracker
+from posetrack import _body, _limbs, _smooth, _tracker
 from posetrack._observe import Landmarks
 
 # -- metrics ----------------------------------------------------------------------------------
@@ -251,6 +251,116 @@ def test_smooth_sequence_starts_from_the_interpolated_start(monkeypatch):
     np.testing.assert_array_equal(interpolated, replaced)
     assert pt.LIMB_NAMES[0] == "right arm" and np.flatnonzero(interpolated[:, 0]).tolist() == [10]
     assert not interpolated[:, 1:].any()
+
+
+def test_crossfade_weights_hand_over_from_the_earlier_window():
+    w = _smooth.crossfade_weights(16)
+    assert w.shape == (16,) and np.all(np.diff(w) < 0)
+    np.testing.assert_allclose(w[[0, -1]], [16 / 17, 1 / 17], rtol=1e-6)
+    np.testing.assert_allclose(w + w[::-1], 1.0, rtol=1e-6)  # symmetric: neither edge favoured
+    assert _smooth.crossfade_weights(0).shape == (0,)
+
+
+def _random_poses(n, seed):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 43)).astype(np.float32)
+    q = p[:, 3:].reshape(n, 10, 4)
+    p[:, 3:] = (q / np.linalg.norm(q, axis=-1, keepdims=True)).reshape(n, 40)
+    return p
+
+
+def test_blend_params_interpolates_positions_and_rotations():
+    a, b = _random_poses(3, 0), _random_poses(3, 1)
+    w = np.array([[1.0], [0.0], [0.25]], np.float32)
+    out = np.asarray(_smooth.blend_params(jnp.asarray(a), jnp.asarray(b), jnp.asarray(w)))
+    # Weight 1 gives a's rotations (their signs b's: q and -q are one rotation), weight 0 b.
+    np.testing.assert_allclose(out[0, :3], a[0, :3], atol=1e-6)
+    sign = np.sign(np.sum(out[0, 3:].reshape(10, 4) * a[0, 3:].reshape(10, 4), -1))
+    np.testing.assert_allclose(
+        out[0, 3:].reshape(10, 4), sign[:, None] * a[0, 3:].reshape(10, 4), atol=1e-6
+    )
+    np.testing.assert_array_equal(
+        sign * np.sum(a[0, 3:].reshape(10, 4) * b[0, 3:].reshape(10, 4), -1) >= 0, True
+    )
+    np.testing.assert_allclose(out[1], b[1], atol=1e-6)
+    np.testing.assert_allclose(out[2, :3], 0.25 * a[2, :3] + 0.75 * b[2, :3], atol=1e-6)
+    q = out[:, 3:].reshape(3, 10, 4)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-6)
+    # Each rotation lies on the shorter arc between the two, at a quarter of the way from b.
+    ang = lambda x, y: 2 * np.arccos(np.clip(np.abs(np.sum(x * y, -1)), 0, 1))  # noqa: E731
+    qa, qb = a[2, 3:].reshape(10, 4), b[2, 3:].reshape(10, 4)
+    np.testing.assert_allclose(ang(q[2], qb) + ang(q[2], qa), ang(qa, qb), atol=1e-4)
+    assert np.all(ang(q[2], qb) < ang(q[2], qa) + 1e-6)
+    # q and -q are one rotation: flipping a's signs changes nothing.
+    a_flipped = a.copy()
+    a_flipped[:, 3:] *= -1
+    out_f = _smooth.blend_params(jnp.asarray(a_flipped), jnp.asarray(b), jnp.asarray(w))
+    np.testing.assert_allclose(np.asarray(out_f)[1:], out[1:], atol=1e-6)
+
+
+def test_blend_window_blends_only_weighted_valid_frames_and_gives_their_keypoints():
+    shape = pt.BodyShape.default(jnp.float32)
+    P, prev = _random_poses(4, 2), _random_poses(4, 3)
+    valid = jnp.asarray([True, True, False, True])
+    weight = jnp.asarray([0.5, 0.0, 0.5, 0.0], jnp.float32)
+    out, kps = _smooth.blend_window(shape, jnp.asarray(P), valid, jnp.asarray(prev), weight)
+    out = np.asarray(out)
+    np.testing.assert_array_equal(out[1:], P[1:])  # weight 0 or not valid: bit for bit
+    half = _smooth.blend_params(jnp.asarray(prev[:1]), jnp.asarray(P[:1]), jnp.full((1, 1), 0.5))
+    np.testing.assert_allclose(out[0], np.asarray(half)[0], atol=1e-6)
+    model = np.stack([np.asarray(_body.keypoints(shape, jnp.asarray(p))) for p in out])
+    np.testing.assert_allclose(np.asarray(kps), model, atol=1e-5)
+
+
+def _recording_window(seen):
+    """A stand-in for the window program: records its poses and the blend it was given,
+    returns each frame's poses shifted by the call's number (so windows disagree)."""
+
+    def window(settings, shape, intrinsics, p, lm, valid, fps, conf, kps, prev, prev_w):
+        seen.append((np.asarray(p), np.asarray(prev), np.asarray(prev_w)))
+        out = np.asarray(p).copy()
+        out[:, 0] += len(seen)
+        return jnp.asarray(out), jnp.zeros((p.shape[0], 18, 3))
+
+    return window
+
+
+@pytest.mark.parametrize("crossfade", [False, True])
+def test_smooth_sequence_hands_each_window_the_last_ones_shared_frames(monkeypatch, crossfade):
+    """Cut: each window's middle frames kept, no blend asked for. Cross-fade: each window
+    after the first gets the earlier window's poses of the shared frames with
+    :func:`crossfade_weights`, and keeps all its frames (the blend is done in the program)."""
+    settings = pt.SmoothSettings(window=8, overlap=4, crossfade=crossfade)
+    T = 14  # windows [0, 8) and [4, 12) ... [8, 14): three calls
+    params = np.tile(_body.facing_camera_params_np(2.5), (T, 1))
+    params[:, 1] = np.arange(T)
+    seen = []
+    monkeypatch.setattr(_smooth, "smooth_window_program", _recording_window(seen))
+    kps = np.zeros((T, 18, 3), np.float32)
+    lm = Landmarks(
+        keypoints2d=np.zeros((T, 18, 2), np.float32), confidence=np.ones((T, 18), np.float32),
+        points3d=kps, detected=np.ones((T, 18), bool), has_depth=np.ones((T, 18), bool),
+    )  # fmt: skip
+    intr = pt.Intrinsics.create(fx=525.0, fy=525.0, cx=160.0, cy=120.0, width=320, height=240)
+    out, _, _ = _smooth.smooth_sequence(
+        settings, pt.BodyShape.default(jnp.float32), intr, params, lm, np.ones(T, bool),
+        fps=30.0, keypoints=kps,
+    )  # fmt: skip
+    assert len(seen) == 3
+    assert not seen[0][2].any()
+    shift = out[:, 0] - params[:, 0]  # which call's output each frame holds
+    if not crossfade:
+        assert all(not w.any() for _, _, w in seen)
+        np.testing.assert_array_equal(shift, [1] * 6 + [2] * 4 + [3] * 4)
+        return
+    for k in (1, 2):
+        _, prev, w = seen[k]
+        np.testing.assert_allclose(w[:4], _smooth.crossfade_weights(4))
+        assert not w[4:].any()
+        start = 4 * k
+        np.testing.assert_allclose(prev[:4, 0], params[start : start + 4, 0] + k)
+        np.testing.assert_allclose(prev[:4, 1], np.arange(start, start + 4))
+    np.testing.assert_array_equal(shift, [1] * 4 + [2] * 4 + [3] * 6)
 
 
 def test_limb_names_follow_the_limbs_keypoints():
@@ -583,9 +693,10 @@ def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes)
     assert fixed.exchanged[sw[seen], 0].mean() > 0.9
     assert fixed.exchanged[:12, 0].sum() + fixed.exchanged[28:, 0].sum() <= 2
     gt = clip.joints3d
-    assert pt.swapped_limb_frames(fixed.keypoints3d, gt) <= pt.swapped_limb_frames(
-        modes["offline"].keypoints3d, gt
-    ) + 1  # as few as without the detector's swap
+    assert (
+        pt.swapped_limb_frames(fixed.keypoints3d, gt)
+        <= pt.swapped_limb_frames(modes["offline"].keypoints3d, gt) + 1
+    )  # as few as without the detector's swap
     d_fixed = pt.accuracy(fixed.keypoints3d, gt).mean_mm
     d_raw = pt.accuracy(raw.keypoints3d, gt).mean_mm
     print(f"D with relabelling {d_fixed:.1f} mm, without {d_raw:.1f} mm")
