@@ -32,7 +32,9 @@ consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
 (``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
-and the two passes averaged), ``kept`` (``duplicates=None``), ``settleN``
+and the two passes averaged), ``crossfade`` (``SmoothSettings(crossfade=True)``: the
+offline windows blended over their shared frames; the default since 2026-12-02, so the same
+as ``default`` now), ``bothways-crossfade`` (both), ``kept`` (``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
 (``TrackerConfig(lift_band=M)``, metres), ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
