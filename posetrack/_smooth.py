@@ -25,7 +25,8 @@ optimistix' dense LM would form a 5,504-column Jacobian. The per-frame Jacobians
 ``jax.jacfwd`` of the same residual function the tracker's fits use.
 
 One jitted call per window (:func:`smooth_window`); ``posetrack.track`` runs it over the
-recording in overlapping windows (offline).
+recording in overlapping windows (offline), each window's solution faded into the next over
+the frames they share (:func:`crossfade_weights`, :func:`blend_params`).
 
 **Online** (``Tracker(mode="online", lag=L)``, causal) uses a cheaper model: after each frame
 the tracker's keypoints over the last ``online_window`` frames are smoothed by the same
