@@ -326,3 +326,22 @@ def test_the_seed_means_show_how_a_reported_mean_moves_with_the_tracker_seed():
     assert rows["all"]["D_by_tseed"] == pytest.approx({0: 80 / 3, 1: 30.0})
     with pytest.raises(SystemExit, match="incomplete"):
         paired.seed_means(records[:-1], "default")
+
+
+def test_the_depth_bias_diagnosis_keeps_to_tuning_seeds_and_signs_its_error(seeds, capsys):
+    """benchmarks/depth_bias.py refuses every seed outside the tuning range before tracking,
+    and reads a torso that is too close to the camera as negative (frames without an
+    estimate skipped)."""
+    db = load("depth_bias")
+    for bad in (seeds.REPORT_SEEDS[0], seeds.TEST_SEEDS[0], seeds.TUNING_SEEDS[-1] + 1):
+        assert db.main(["--seeds", f"1000,{bad}"]) == 2
+        assert "tuning seeds only" in capsys.readouterr().err
+    truth = np.zeros((3, 18, 3))
+    truth[..., 2] = 2.5
+    est = truth.copy()
+    est[:, list(db.TORSO), 2] -= 0.04  # 40 mm nearer
+    est[:, 4, 2] += 1.0  # a wrist far off: not a torso keypoint
+    est[2] = np.nan
+    assert db.torso_depth_bias(est, truth) == pytest.approx(-40.0)
+    assert db.clip_motion(1000) == load("tune").real_motion(1000)
+    assert db.clip_motion(1008) == "walk"
