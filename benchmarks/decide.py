@@ -34,7 +34,8 @@ consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
 and the two passes averaged), ``crossfade`` (``SmoothSettings(crossfade=True)``: the
 offline windows blended over their shared frames; the default since 2026-12-02, so the same
-as ``default`` now), ``bothways-crossfade`` (both), ``kept`` (``duplicates=None``), ``settleN``
+as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now), ``kept``
+(``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
 (``TrackerConfig(lift_band=M)``, metres), ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,

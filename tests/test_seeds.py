@@ -43,6 +43,10 @@ def test_seed_ranges_are_disjoint(seeds):
     seeds.check_disjoint()
 
 
+def test_tuning_seeds_in_words_are_the_tuning_seeds(seeds):
+    assert seeds.parse_seeds(seeds.TUNING_TEXT) == list(seeds.TUNING_SEEDS)
+
+
 def test_overlapping_ranges_are_refused(seeds, monkeypatch):
     monkeypatch.setitem(seeds.RANGES, "TEST_SEEDS", range(95, 105))
     with pytest.raises(ValueError, match="REPORT_SEEDS and TUNING_SEEDS|overlap"):
