@@ -56,6 +56,7 @@ from ._limbs import LIMBS
 from ._observe import Landmarks
 from ._programs import program
 from ._residuals import ResidualSettings, _sqrt_reweight
+from ._rotation import quat_normalize
 from ._select import consensus_set
 
 #: Coefficients of the second difference X_{s+1} - 2 X_s + X_{s-1}, for frames s-1, s, s+1.
@@ -520,7 +521,6 @@ def smooth_sequence(
     W, overlap = settings.window, settings.overlap
     step = W - overlap
     half = overlap // 2
-    fade = crossfade_weights(overlap) if settings.crossfade else np.zeros(overlap, np.float32)
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
     kps_in = np.where(valid[:, None, None], np.nan_to_num(np.asarray(keypoints, np.float32)), 0.0)
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
@@ -549,7 +549,8 @@ def smooth_sequence(
         if settings.crossfade:  # this window's frames, the shared ones blended in the program
             first, last = 0, n
             if stop < T:
-                previous[:overlap], previous_weight[:overlap] = smoothed[step:], fade
+                previous[:overlap] = smoothed[step:]
+                previous_weight[:overlap] = crossfade_weights(overlap)
         else:
             first = 0 if start == 0 else half
             last = n if stop == T else n - half
@@ -623,8 +624,7 @@ def blend_params(
     q_b = b[..., 3:].reshape(*b.shape[:-1], 10, 4)
     w = weight_a[..., None]
     q_a = jnp.where(jnp.sum(q_a * q_b, axis=-1, keepdims=True) < 0, -q_a, q_a)
-    q = w * q_a + (1 - w) * q_b
-    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    q = quat_normalize(w * q_a + (1 - w) * q_b)
     xyz = weight_a * a[..., :3] + (1 - weight_a) * b[..., :3]
     return jnp.concatenate([xyz, q.reshape(*q.shape[:-2], 40)], axis=-1)
 
