@@ -13,7 +13,7 @@ import pytest
 
 import posetrack.synth as ps
 from posetrack import io
-from posetrack.synth import _mocap
+from posetrack.synth import _mocap, _skeleton
 
 W, H = 160, 120
 # Rigid distances (the shoulder width is not: the clavicles move).
@@ -376,6 +376,31 @@ def test_kinect_motions_retarget_with_constant_bones(name):
     n, d = seq.floor_plane[:3], seq.floor_plane[3]
     assert (seq.joints3d[:, [10, 13]] @ n + d).min() > 0.03
     assert seq.visible.mean() > 0.6
+
+
+def test_msr_torso_is_upright_despite_its_spine_marker():
+    # MSR Action3D's spine joint lies ~40 degrees off the hip-neck line; built from it, the
+    # pelvis tipped back ~35 degrees and the chest forward ~50 (a contorted torso).
+    _require_data("msr-action3d-skeleton3d")
+    m, _, _ = _mocap.load_markers("msr:a05_s02_e01")
+    mid_hip = 0.5 * (m["hip_l"] + m["hip_r"])
+    axis = m["neck"] - mid_hip
+    raw = np.median(_angle(m["spine"], mid_hip, m["neck"]))
+    assert raw > _mocap.SPINE_MAX_DEG  # the data's marker: the case being handled
+    spine = _mocap.torso_spine(m)
+    assert np.max(_angle(spine, mid_hip, m["neck"])) < 1e-3  # on the hip-neck line
+    assert np.allclose(np.sum((spine - mid_hip) * axis, -1),
+                       np.sum((m["spine"] - mid_hip) * axis, -1))  # at the marker's height
+    subject = _skeleton.sample_subject(np.random.default_rng(0))
+    R, _ = _mocap.retarget(m, subject)
+    pelvis_y = R[:, _mocap.SEG["pelvis"], :, 1]
+    chest_y = R[:, _mocap.SEG["chest"], :, 1]
+    bend = np.degrees(np.arccos(np.clip(np.sum(pelvis_y * chest_y, -1), -1, 1)))
+    assert np.median(bend) < 10.0
+    # UTKinect's spine marker is on the line already: kept as it is.
+    _require_data("utkinect-action3d-joints")
+    u, _, _ = _mocap.load_markers("utk:s01_e01:waveHands")
+    assert _mocap.torso_spine(u) is u["spine"]
 
 
 def test_data_root_respects_env(tmp_path, monkeypatch):
