@@ -41,13 +41,15 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
-``torso_with_limbs``);
+``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
+``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -158,6 +160,14 @@ def settings(variant: str) -> dict:
         return {"motion": pt.SmoothSettings(crossfade=True)}
     if variant == "bothways-crossfade":
         return {"motion": pt.SmoothSettings(both_ways=True, crossfade=True)}
+    if variant.startswith("prior") and "/" in variant:
+        sigma, _, change = variant[5:].partition("/")
+        try:
+            return {"refine": dataclasses.replace(
+                pt.ShapeFitSettings.tracking(), prior_sigma=float(sigma), max_change=float(change)
+            )}  # fmt: skip
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -181,7 +191,7 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'sides:G+G...'"
+        "'farX', 'priorS/M', 'sides:G+G...'"
     )
 
 
