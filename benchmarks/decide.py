@@ -42,7 +42,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
-``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``);
+``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
+(the same with ``radius_prior_sigma=S``: the part radii only);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
@@ -160,11 +161,13 @@ def settings(variant: str) -> dict:
         return {"motion": pt.SmoothSettings(crossfade=True)}
     if variant == "bothways-crossfade":
         return {"motion": pt.SmoothSettings(both_ways=True, crossfade=True)}
-    if variant.startswith("prior") and "/" in variant:
-        sigma, _, change = variant[5:].partition("/")
+    if variant.startswith(("prior", "rprior")) and "/" in variant:
+        radii = variant.startswith("rprior")
+        sigma, _, change = variant[6 if radii else 5 :].partition("/")
+        field = "radius_prior_sigma" if radii else "prior_sigma"
         try:
             return {"refine": dataclasses.replace(
-                pt.ShapeFitSettings.tracking(), prior_sigma=float(sigma), max_change=float(change)
+                pt.ShapeFitSettings.tracking(), **{field: float(sigma)}, max_change=float(change)
             )}  # fmt: skip
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
@@ -191,7 +194,7 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'sides:G+G...'"
+        "'farX', 'priorS/M', 'rpriorS/M', 'sides:G+G...'"
     )
 
 

@@ -84,6 +84,10 @@ class ShapeFitSettings:
     """Weight of ``|u / prior_sigma|^2`` (summed over the refined fields)."""
     prior_sigma: float = 0.1
     """Standard deviation of each log-scale factor around the input shape (0.1: 10 %)."""
+    radius_prior_sigma: float | None = None
+    """``prior_sigma`` of the part radii (the ``*_radius`` fields); None: ``prior_sigma``. The
+    landmark-based shape's radii follow the person's height, not their girth, which only the
+    depth shows."""
     max_change: float = 0.4
     """Log-scale factors are clipped to [-max_change, max_change] (0.4: x0.67 to x1.5)."""
     width: int = 160
@@ -154,6 +158,11 @@ class ShapeFitSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"ShapeFitSettings.{name} must be >= 0, got {v!r}")
+        r = self.radius_prior_sigma
+        if r is not None and not (math.isfinite(r) and r > 0):
+            raise ValueError(
+                f"ShapeFitSettings.radius_prior_sigma must be None or positive, got {r!r}"
+            )
         if self.width < 8 or self.height < 8:
             raise ValueError(
                 f"ShapeFitSettings: width x height must be at least 8x8, got "
@@ -258,6 +267,17 @@ def _frame_loss(shape, params, frames_f: _Frames, intrinsics, settings, res_sett
     return delta, jnp.sum(e * e)
 
 
+def prior_sigmas(settings: ShapeFitSettings) -> np.ndarray:
+    """``(field,)`` the prior's standard deviation of each refined field's log-scale factor."""
+    radius = settings.prior_sigma if settings.radius_prior_sigma is None else (
+        settings.radius_prior_sigma
+    )  # fmt: skip
+    return np.asarray(
+        [radius if f.endswith("_radius") else settings.prior_sigma for f in settings.fields],
+        np.float32,
+    )
+
+
 def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
     res_settings = ResidualSettings(loss=settings.loss)
     shape = apply_factors(base, u, settings.fields)
@@ -267,7 +287,7 @@ def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
     w = frames.weight
     n = jnp.sum(w)
     data = jnp.sum(w * (settings.delta_weight * deltas + settings.landmark_weight * lms)) / n
-    prior = settings.prior_weight * jnp.sum((u / settings.prior_sigma) ** 2)
+    prior = settings.prior_weight * jnp.sum((u / prior_sigmas(settings)) ** 2)
     return data + prior, (jnp.sum(w * deltas) / n, jnp.sum(w * lms) / n)
 
 

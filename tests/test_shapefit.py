@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack._shapefit import soft_delta
+from posetrack._shapefit import prior_sigmas, soft_delta
 from posetrack._so3 import axis_angle, matrix_to_quat
 
 H, W = 120, 160
@@ -204,8 +204,18 @@ def test_bad_input_raises_naming_the_argument(data, change, name):
 
 @pytest.mark.parametrize(
     "kw, name",
-    [(dict(steps=0), "steps"), (dict(fields=("tail",)), "fields"), (dict(prior_sigma=0.0), "prior_sigma")],
+    [(dict(steps=0), "steps"), (dict(fields=("tail",)), "fields"), (dict(prior_sigma=0.0), "prior_sigma"),
+     (dict(radius_prior_sigma=-0.1), "radius_prior_sigma"),
+     (dict(radius_prior_sigma=float("nan")), "radius_prior_sigma")],
 )
 def test_bad_settings_raise(kw, name):
     with pytest.raises(ValueError, match=name):
         pt.ShapeFitSettings(**kw)
+
+
+def test_radius_prior_sigma_applies_to_the_radii_only():
+    fields = ("thigh", "torso_radius", "shoulder_drop", "shin_radius")
+    same = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2)
+    np.testing.assert_allclose(prior_sigmas(same), [0.2] * 4)
+    loose = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2, radius_prior_sigma=0.5)
+    np.testing.assert_allclose(prior_sigmas(loose), [0.2, 0.5, 0.2, 0.5])
