@@ -7,8 +7,9 @@ the upper arm's, hip 1.35 x the thigh's, neck 0.6 x the torso's). Whether that d
 the person is what this reads: each tuning clip is tracked offline (the shipped tracker) with
 and without the body-shape refinement, and the mean signed depth error (camera z, mm;
 negative = too close to the camera) of the neck, shoulders and hips is printed for the
-per-frame pass and the output, with the generator's girth (``subject["girth_scale"]``: every
-part radius and the torso's width and depth scale with it) and the refined torso radius.
+per-frame pass and the output (and each part's x / y / z error), with the generator's
+girth (``subject["girth_scale"]``: every part radius and the torso's width and depth scale
+with it) and the refined torso radius.
 
 Tuning seeds only (``seeds.TUNING_SEEDS``); wide clips (``variety="wide"``), clean, 120
 frames at 30 fps, 320x240; seeds below 1008 track ``tune.real_motion(seed)``, the others
@@ -50,6 +51,19 @@ def torso_depth_bias(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(((estimate - truth)[ok][:, TORSO, 2]).mean() * 1000)
 
 
+#: The torso keypoints by part, for the per-part errors.
+PARTS = {"neck": (1,), "shoulders": (2, 5), "hips": (8, 11)}
+
+
+def part_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, list[float]]:
+    """Per part of :data:`PARTS`: the mean signed camera-frame error (x, y, z; mm) over the
+    frames with an estimate (camera y points down: negative y = too high; negative z = too
+    close to the camera)."""
+    ok = np.isfinite(estimate).all(axis=(1, 2))
+    err = (estimate - truth)[ok] * 1000
+    return {name: err[:, list(k)].mean(axis=(0, 1)).tolist() for name, k in PARTS.items()}
+
+
 def measure(seed: int) -> dict:
     """One clip: girth, and per run the output's and the per-frame pass's torso depth bias,
     D (body joints, mm) and the tracker's torso radius."""
@@ -65,6 +79,7 @@ def measure(seed: int) -> dict:
             "output_torso_z_mm": torso_depth_bias(res.keypoints3d, seq.joints3d),
             "per_frame_torso_z_mm": torso_depth_bias(res.per_frame_keypoints3d, seq.joints3d),
             "D_mm": pt.accuracy(res.keypoints3d, seq.joints3d).mean_mm,
+            "part_xyz_mm": part_errors(res.keypoints3d, seq.joints3d),
             "torso_radius_m": float(res.shape.torso_radius),
             "shape": {k: float(v) for k, v in res.shape.to_dict().items()},
         }
@@ -92,6 +107,14 @@ def table(clips: list[dict]) -> str:
             lines.append(
                 f"refined {key}: correlation with girth {np.corrcoef(g, z)[0, 1]:+.2f}, "
                 f"fit {icpt:+.1f} {slope:+.1f} x girth"
+            )
+        for name in PARTS:
+            e = np.array([c["refined"]["part_xyz_mm"][name] for c in clips])
+            slope, icpt = np.polyfit(g, e[:, 2], 1)
+            lines.append(
+                f"refined {name}: mean x / y / z error {e[:, 0].mean():+.1f} / "
+                f"{e[:, 1].mean():+.1f} / {e[:, 2].mean():+.1f} mm (y down), z fit "
+                f"{icpt:+.1f} {slope:+.1f} x girth"
             )
         radius = np.array([c["refined"]["torso_radius_m"] for c in clips])
         slope, icpt = np.polyfit(g, radius, 1)
