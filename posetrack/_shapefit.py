@@ -269,9 +269,7 @@ def _frame_loss(shape, params, frames_f: _Frames, intrinsics, settings, res_sett
 
 def prior_sigmas(settings: ShapeFitSettings) -> np.ndarray:
     """``(field,)`` the prior's standard deviation of each refined field's log-scale factor."""
-    radius = settings.prior_sigma if settings.radius_prior_sigma is None else (
-        settings.radius_prior_sigma
-    )  # fmt: skip
+    radius = settings.radius_prior_sigma or settings.prior_sigma  # None: the fields' own
     return np.asarray(
         [radius if f.endswith("_radius") else settings.prior_sigma for f in settings.fields],
         np.float32,
