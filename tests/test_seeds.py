@@ -349,3 +349,30 @@ def test_the_depth_bias_diagnosis_keeps_to_tuning_seeds_and_signs_its_error(seed
     assert db.torso_depth_bias(est, truth) == pytest.approx(-40.0)
     assert db.clip_motion(1000) == load("tune").real_motion(1000)
     assert db.clip_motion(1008) == "walk"
+
+
+def test_the_torso_profile_diagnosis_reads_width_and_depth_of_an_elliptical_torso(seeds, capsys):
+    """benchmarks/torso_profile.py refuses seeds outside the tuning range, and on a facing
+    torso of elliptical cross-section (half-width 40 px, half-depth 10 cm) reads its width
+    and how far behind the centre the surface lies at 70 % of the half-width (0.29 x 10 cm)."""
+    tp = load("torso_profile")
+    assert tp.main(["--seeds", f"1000,{seeds.REPORT_SEEDS[0]}"]) == 2
+    assert "tuning seeds only" in capsys.readouterr().err
+    fx, zc, a, b = 300.0, 2.5, 40, 0.1
+    depth = np.zeros((240, 320))
+    u = np.arange(320) - 160.0
+    inside = np.abs(u) < a + 0.5
+    profile = zc + b * (1 - np.sqrt(np.clip(1 - (u / (a + 0.5)) ** 2, 0, 1)))
+    depth[:, inside] = profile[inside]
+    kp = np.zeros((18, 2))
+    kp[1], kp[8], kp[11] = (160, 60), (150, 180), (170, 180)
+    kp[2], kp[5] = (120, 60), (200, 60)
+    conf = np.ones(18)
+    width, dz = tp.frame_profile(depth, kp, conf, fx)
+    assert width == pytest.approx(2 * a * zc / fx, rel=0.05)
+    assert dz == pytest.approx(b * (1 - np.sqrt(1 - 0.7**2)), abs=0.003)
+    kp[2], kp[5] = (150, 60), (170, 60)  # turned sideways: shoulders close in the image
+    assert tp.frame_profile(depth, kp, conf, fx) is None
+    conf[8] = 0.1  # a hip missed
+    kp[2], kp[5] = (120, 60), (200, 60)
+    assert tp.frame_profile(depth, kp, conf, fx) is None
