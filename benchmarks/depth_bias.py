@@ -122,8 +122,12 @@ def table(clips: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def run_diagnosis(argv: list[str] | None, doc: str, name: str, measure_clip, make_table) -> int:
+    """The command line of a per-clip tuning diagnosis (this one, ``torso_profile.py``):
+    ``--seeds`` (tuning seeds only, else exit status 2 before any work) and ``--out``; each
+    seed measured by ``measure_clip(seed)`` (progress on stderr), ``make_table(clips)``
+    printed and, with ``--out``, written with the clips as JSON."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--seeds", default="1000-1013", help="tuning seeds, e.g. 1000-1013")
     ap.add_argument("--out", help="write the clips and the table here (JSON)")
     a = ap.parse_args(argv)
@@ -134,17 +138,21 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     clips = []
     for i, seed in enumerate(seeds):
-        clips.append(measure(seed))
+        clips.append(measure_clip(seed))
         print(f"[{i + 1}/{len(seeds)}] seed {seed} done", file=sys.stderr, flush=True)
-    text = table(clips)
+    text = make_table(clips)
     print(text)
     if a.out:
         Path(a.out).write_text(json.dumps({
-            "benchmark": "depth_bias", "seeds": seeds, "clips": clips, "table": text,
+            "benchmark": name, "seeds": seeds, "clips": clips, "table": text,
             "seconds": time.perf_counter() - t0, "machine": machine_info(),
         }, indent=1))  # fmt: skip
         print(f"wrote {a.out}")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_diagnosis(argv, __doc__, "depth_bias", measure, table)
 
 
 if __name__ == "__main__":

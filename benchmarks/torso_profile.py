@@ -24,18 +24,10 @@ only (``seeds.TUNING_SEEDS``); wide clips, clean, 120 frames at 30 fps, 320x240;
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
-import time
-from pathlib import Path
-
 import numpy as np
-from depth_bias import clip_motion
-from seeds import TUNING_SEEDS, TUNING_TEXT, parse_seeds
+from depth_bias import clip_motion, run_diagnosis
 
 import posetrack as pt
-from posetrack.app import machine_info
 
 #: The shoulders' 2D distance over the neck-to-mid-hip distance from which a frame faces the
 #: camera.
@@ -133,25 +125,7 @@ def table(clips: list[dict], min_frames: int = 5) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", default="1000-1013", help="tuning seeds, e.g. 1000-1013")
-    ap.add_argument("--out", help="write the clips and the table here (JSON)")
-    a = ap.parse_args(argv)
-    seeds = parse_seeds(a.seeds)
-    if not all(s in TUNING_SEEDS for s in seeds):
-        print(f"error: --seeds: tuning seeds only ({TUNING_TEXT})", file=sys.stderr)
-        return 2
-    t0 = time.perf_counter()
-    clips = [measure(s) for s in seeds]
-    text = table(clips)
-    print(text)
-    if a.out:
-        Path(a.out).write_text(json.dumps({
-            "benchmark": "torso_profile", "seeds": seeds, "clips": clips, "table": text,
-            "seconds": time.perf_counter() - t0, "machine": machine_info(),
-        }, indent=1))  # fmt: skip
-        print(f"wrote {a.out}")
-    return 0
+    return run_diagnosis(argv, __doc__, "torso_profile", measure, table)
 
 
 if __name__ == "__main__":
