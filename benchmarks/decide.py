@@ -161,10 +161,10 @@ def settings(variant: str) -> dict:
         return {"motion": pt.SmoothSettings(crossfade=True)}
     if variant == "bothways-crossfade":
         return {"motion": pt.SmoothSettings(both_ways=True, crossfade=True)}
-    if variant.startswith(("prior", "rprior")) and "/" in variant:
-        radii = variant.startswith("rprior")
-        sigma, _, change = variant[6 if radii else 5 :].partition("/")
-        field = "radius_prior_sigma" if radii else "prior_sigma"
+    kind, _, values = variant.partition("prior")
+    if kind in ("", "r") and "/" in values:
+        sigma, _, change = values.partition("/")
+        field = "radius_prior_sigma" if kind == "r" else "prior_sigma"
         try:
             return {"refine": dataclasses.replace(
                 pt.ShapeFitSettings.tracking(), **{field: float(sigma)}, max_change=float(change)

@@ -521,6 +521,7 @@ def smooth_sequence(
     W, overlap = settings.window, settings.overlap
     step = W - overlap
     half = overlap // 2
+    fade = crossfade_weights(overlap) if settings.crossfade else None
     safe = np.where(valid[:, None], params, body.facing_camera_params_np(2.5))
     kps_in = np.where(valid[:, None, None], np.nan_to_num(np.asarray(keypoints, np.float32)), 0.0)
     lm = jax.tree.map(lambda x: np.asarray(x), landmarks)
@@ -550,7 +551,7 @@ def smooth_sequence(
             first, last = 0, n
             if stop < T:
                 previous[:overlap] = smoothed[step:]
-                previous_weight[:overlap] = crossfade_weights(overlap)
+                previous_weight[:overlap] = fade
         else:
             first = 0 if start == 0 else half
             last = n if stop == T else n - half
