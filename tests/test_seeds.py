@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import posetrack as pt
+
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
@@ -376,3 +378,29 @@ def test_the_torso_profile_diagnosis_reads_width_and_depth_of_an_elliptical_tors
     conf[8] = 0.1  # a hip missed
     kp[2], kp[5] = (120, 60), (200, 60)
     assert tp.frame_profile(depth, kp, conf, fx) is None
+
+
+def test_the_torso_oracle_keeps_to_tuning_seeds_and_replaces_only_the_radii(seeds, capsys):
+    """benchmarks/oracle_torso.py refuses seeds outside the tuning range; its oracle shape is
+    the tracker's landmark-based shape with the torso radius set to the generated chest's
+    half-depth (0.106 x girth) and, in the all-radii run, every other radius x girth (the
+    lengths untouched)."""
+    ot = load("oracle_torso")
+    assert ot.main(["--seeds", f"1000,{seeds.REPORT_SEEDS[0]}"]) == 2
+    assert "tuning seeds only" in capsys.readouterr().err
+    import posetrack._tracker as tracker_module
+
+    start = pt.BodyShape.create(thigh=0.5, thigh_radius=0.08)
+    saved = tracker_module.estimate_shape
+    tracker_module.estimate_shape = lambda *a, **k: (start, {"size": 1.0})
+    try:
+        torso_only = ot._with_radii(1.5, every_radius=False)()[0].to_dict()
+        every = ot._with_radii(1.5, every_radius=True)()[0].to_dict()
+    finally:
+        tracker_module.estimate_shape = saved
+    for values in (torso_only, every):
+        assert values["torso_radius"] == pytest.approx(0.106 * 1.5)
+        assert values["thigh"] == pytest.approx(0.5)
+    assert torso_only["thigh_radius"] == pytest.approx(0.08)
+    assert every["thigh_radius"] == pytest.approx(0.12)
+    assert every["head_radius"] == pytest.approx(1.5 * start.to_dict()["head_radius"])
