@@ -43,7 +43,9 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
 ``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
-(the same with ``radius_prior_sigma=S``: the part radii only);
+(the same with ``radius_prior_sigma=S``: the part radii only), ``twopassS`` (offline: the
+recording tracked twice, the second time from the first's refined shape, both refinements
+with ``radius_prior_sigma=S``; the time is both passes');
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
@@ -171,6 +173,13 @@ def settings(variant: str) -> dict:
             )}  # fmt: skip
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("twopass"):
+        try:
+            refine = pt.ShapeFitSettings.tracking()
+            refine = dataclasses.replace(refine, radius_prior_sigma=float(variant[7:]))
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+        return {"refine": refine, _SECOND_PASS: True}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -194,8 +203,12 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'sides:G+G...'"
+        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'sides:G+G...'"
     )
+
+
+#: ``settings`` key of the ``twopassS`` variants (not a ``Tracker`` keyword).
+_SECOND_PASS = "second_pass"
 
 
 def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
@@ -212,8 +225,13 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
             for name, kwargs in variants.items():
                 t0 = time.perf_counter()
+                kwargs = dict(kwargs)
+                second = kwargs.pop(_SECOND_PASS, False)
                 tr = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs)
                 res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
+                if second:  # again, from the first pass's refined shape
+                    tr = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, shape=res.shape, **kwargs)
+                    res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
                 rec[name] = {
                     **decision_measures(res.keypoints3d, seq.joints3d),
                     "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,

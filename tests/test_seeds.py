@@ -97,6 +97,11 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     for bad in ("settle", "sides:arms+elbows"):
         with pytest.raises(SystemExit, match="settleN|groups"):
             decide.settings(bad)
+    two = decide.settings("twopass10")  # the radii's prior off, the recording tracked twice
+    assert two["refine"].radius_prior_sigma == 10.0 and two[decide._SECOND_PASS] is True
+    assert two["refine"].prior_sigma == pt.ShapeFitSettings.tracking().prior_sigma
+    with pytest.raises(SystemExit, match="twopass"):
+        decide.settings("twopass-1")
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
     real = decide.clips([100, 107])
     assert [c[1] for c in real] == [100, 107] and {c[3] for c in real} == {"wide"}
