@@ -45,7 +45,9 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
 (the same with ``radius_prior_sigma=S``: the part radii only), ``twopassS`` (offline: the
 recording tracked twice, the second time from the first's refined shape, both refinements
-with ``radius_prior_sigma=S``; the time is both passes');
+with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline: the first N
+frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the radii's prior
+off) the start of the whole recording's tracking, refined the same way; the time is both);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
@@ -180,6 +182,9 @@ def settings(variant: str) -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
+    if variant.startswith("prepass") and variant[7:].isdigit() and int(variant[7:]) >= 10:
+        refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), radius_prior_sigma=10.0)
+        return {"refine": refine, _PREPASS: int(variant[7:])}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -203,12 +208,12 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'sides:G+G...'"
+        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'prepassN' (N >= 10), 'sides:G+G...'"
     )
 
 
-#: ``settings`` key of the ``twopassS`` variants (not a ``Tracker`` keyword).
-_SECOND_PASS = "second_pass"
+#: ``settings`` keys of the ``twopassS`` and ``prepassN`` variants (not ``Tracker`` keywords).
+_SECOND_PASS, _PREPASS = "second_pass", "prepass"
 
 
 def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
@@ -226,7 +231,12 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
             for name, kwargs in variants.items():
                 t0 = time.perf_counter()
                 kwargs = dict(kwargs)
-                second = kwargs.pop(_SECOND_PASS, False)
+                second, first = kwargs.pop(_SECOND_PASS, False), kwargs.pop(_PREPASS, 0)
+                if first:  # the first frames alone; their refined shape starts the recording
+                    pre = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs).run(
+                        seq.depth[:first], seq.keypoints2d[:first], seq.confidence[:first]
+                    )  # fmt: skip
+                    kwargs["shape"] = pre.shape
                 tr = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs)
                 res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
                 if second:  # again, from the first pass's refined shape

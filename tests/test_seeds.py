@@ -102,6 +102,11 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert two["refine"].prior_sigma == pt.ShapeFitSettings.tracking().prior_sigma
     with pytest.raises(SystemExit, match="twopass"):
         decide.settings("twopass-1")
+    pre = decide.settings("prepass40")  # the first 40 frames tracked alone first
+    assert pre[decide._PREPASS] == 40 and pre["refine"].radius_prior_sigma == 10.0
+    for bad in ("prepass", "prepass5", "prepass4x"):
+        with pytest.raises(SystemExit, match="prepassN"):
+            decide.settings(bad)
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
     real = decide.clips([100, 107])
     assert [c[1] for c in real] == [100, 107] and {c[3] for c in real} == {"wide"}
