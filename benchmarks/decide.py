@@ -47,7 +47,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 recording tracked twice, the second time from the first's refined shape, both refinements
 with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline: the first N
 frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the radii's prior
-off) the start of the whole recording's tracking, refined the same way; the time is both);
+off) the start of the whole recording's tracking, refined the same way; the time is both;
+``prepassNr``: the same with only the part radii refined, the lengths as measured);
 every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
@@ -182,9 +183,12 @@ def settings(variant: str) -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
-    if variant.startswith("prepass") and variant[7:].isdigit() and int(variant[7:]) >= 10:
+    frames, radii = variant[7:].removesuffix("r"), variant.endswith("r")
+    if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
         refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), radius_prior_sigma=10.0)
-        return {"refine": refine, _PREPASS: int(variant[7:])}
+        if radii:
+            refine = dataclasses.replace(refine, fields=_RADII)
+        return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -208,10 +212,12 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'prepassN' (N >= 10), 'sides:G+G...'"
+        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'prepassN[r]' (N >= 10), 'sides:G+G...'"
     )
 
 
+#: The part radii among the body-shape fields (``prepassNr``).
+_RADII = tuple(f for f in pt.ShapeFitSettings().fields if f.endswith("_radius"))
 #: ``settings`` keys of the ``twopassS`` and ``prepassN`` variants (not ``Tracker`` keywords).
 _SECOND_PASS, _PREPASS = "second_pass", "prepass"
 

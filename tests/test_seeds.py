@@ -104,7 +104,9 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
         decide.settings("twopass-1")
     pre = decide.settings("prepass40")  # the first 40 frames tracked alone first
     assert pre[decide._PREPASS] == 40 and pre["refine"].radius_prior_sigma == 10.0
-    for bad in ("prepass", "prepass5", "prepass4x"):
+    radii = decide.settings("prepass40r")["refine"].fields  # the lengths as measured
+    assert radii and all(f.endswith("_radius") for f in radii) and "thigh" not in radii
+    for bad in ("prepass", "prepass5", "prepass4x", "prepass40rr"):
         with pytest.raises(SystemExit, match="prepassN"):
             decide.settings(bad)
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
