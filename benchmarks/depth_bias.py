@@ -44,6 +44,17 @@ def clip_motion(seed: int) -> str:
     return real_motion(seed) if seed < 1008 else PROCEDURAL[seed % len(PROCEDURAL)]
 
 
+def generate_clip(seed: int):
+    """``(motion, sequence)`` of a seed's clip: wide, clean, 120 frames at 30 fps, 320x240
+    (this diagnosis's, ``torso_profile.py``'s and ``oracle_torso.py``'s)."""
+    motion = clip_motion(seed)
+    seq = pt.synth.generate(
+        seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=0, width=320, height=240,
+        with_rgb=False, variety="wide",
+    )  # fmt: skip
+    return motion, seq
+
+
 def torso_depth_bias(estimate: np.ndarray, truth: np.ndarray) -> float:
     """Mean signed camera-z error (mm) of the torso keypoints over the frames with an
     estimate; negative: closer to the camera than the truth."""
@@ -67,11 +78,7 @@ def part_errors(estimate: np.ndarray, truth: np.ndarray) -> dict[str, list[float
 def measure(seed: int) -> dict:
     """One clip: girth, and per run the output's and the per-frame pass's torso depth bias,
     D (body joints, mm) and the tracker's torso radius."""
-    motion = clip_motion(seed)
-    seq = pt.synth.generate(
-        seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=0, width=320, height=240,
-        with_rgb=False, variety="wide",
-    )  # fmt: skip
+    motion, seq = generate_clip(seed)
     out = {"seed": seed, "motion": motion, "girth": float(seq.subject["girth_scale"])}
     for name, kwargs in RUNS:
         res = pt.track(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, seed=0, **kwargs)

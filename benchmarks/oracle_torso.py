@@ -24,7 +24,7 @@ radius.
 from __future__ import annotations
 
 import numpy as np
-from depth_bias import PARTS, clip_motion, part_errors, run_diagnosis, torso_depth_bias
+from depth_bias import PARTS, generate_clip, part_errors, run_diagnosis, torso_depth_bias
 
 import posetrack as pt
 import posetrack._tracker as tracker_module
@@ -54,11 +54,7 @@ def _with_radii(girth: float, every_radius: bool):
 
 def measure(seed: int) -> dict:
     """One clip tracked as shipped, with the oracle torso radius and with every radius."""
-    motion = clip_motion(seed)
-    seq = pt.synth.generate(
-        seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=0, width=320, height=240,
-        with_rgb=False, variety="wide",
-    )  # fmt: skip
+    motion, seq = generate_clip(seed)
     girth = float(seq.subject["girth_scale"])
     out = {"seed": seed, "motion": motion, "girth": girth,
            "oracle_torso_radius_m": CHEST_HALF_DEPTH * girth}  # fmt: skip

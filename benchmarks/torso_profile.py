@@ -25,9 +25,7 @@ only (``seeds.TUNING_SEEDS``); wide clips, clean, 120 frames at 30 fps, 320x240;
 from __future__ import annotations
 
 import numpy as np
-from depth_bias import clip_motion, run_diagnosis
-
-import posetrack as pt
+from depth_bias import generate_clip, run_diagnosis
 
 #: The shoulders' 2D distance over the neck-to-mid-hip distance from which a frame faces the
 #: camera.
@@ -85,11 +83,7 @@ def frame_profile(
 
 def measure(seed: int) -> dict:
     """One clip: girth, facing frames read, median width (m) and dz (mm)."""
-    motion = clip_motion(seed)
-    seq = pt.synth.generate(
-        seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=0, width=320, height=240,
-        with_rgb=False, variety="wide",
-    )  # fmt: skip
+    motion, seq = generate_clip(seed)
     fx = float(seq.intrinsics.fx)
     rows = [
         frame_profile(seq.depth[t].astype(np.float64) / 1000, seq.keypoints2d[t],
