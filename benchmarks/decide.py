@@ -183,11 +183,12 @@ def settings(variant: str) -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
-    frames, radii = variant[7:].removesuffix("r"), variant.endswith("r")
+    frames = variant.removeprefix("prepass").removesuffix("r")
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
-        refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), radius_prior_sigma=10.0)
-        if radii:
-            refine = dataclasses.replace(refine, fields=_RADII)
+        fields = _RADII if variant.endswith("r") else pt.ShapeFitSettings.tracking().fields
+        refine = dataclasses.replace(
+            pt.ShapeFitSettings.tracking(), radius_prior_sigma=10.0, fields=fields
+        )
         return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}

@@ -392,7 +392,9 @@ def test_the_torso_profile_diagnosis_reads_width_and_depth_of_an_elliptical_tors
     assert tp.frame_profile(depth, kp, conf, fx) is None
 
 
-def test_the_torso_oracle_keeps_to_tuning_seeds_and_replaces_only_the_radii(seeds, capsys):
+def test_the_torso_oracle_keeps_to_tuning_seeds_and_replaces_only_the_radii(
+    seeds, capsys, monkeypatch
+):
     """benchmarks/oracle_torso.py refuses seeds outside the tuning range; its oracle shape is
     the tracker's landmark-based shape with the torso radius set to the generated chest's
     half-depth (0.106 x girth) and, in the all-radii run, every other radius x girth (the
@@ -403,13 +405,9 @@ def test_the_torso_oracle_keeps_to_tuning_seeds_and_replaces_only_the_radii(seed
     import posetrack._tracker as tracker_module
 
     start = pt.BodyShape.create(thigh=0.5, thigh_radius=0.08)
-    saved = tracker_module.estimate_shape
-    tracker_module.estimate_shape = lambda *a, **k: (start, {"size": 1.0})
-    try:
-        torso_only = ot._with_radii(1.5, every_radius=False)()[0].to_dict()
-        every = ot._with_radii(1.5, every_radius=True)()[0].to_dict()
-    finally:
-        tracker_module.estimate_shape = saved
+    monkeypatch.setattr(tracker_module, "estimate_shape", lambda *a, **k: (start, {"size": 1.0}))
+    torso_only = ot._with_radii(1.5, every_radius=False)()[0].to_dict()
+    every = ot._with_radii(1.5, every_radius=True)()[0].to_dict()
     for values in (torso_only, every):
         assert values["torso_radius"] == pytest.approx(0.106 * 1.5)
         assert values["thigh"] == pytest.approx(0.5)
