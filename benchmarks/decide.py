@@ -43,7 +43,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
 ``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
-(the same with ``radius_prior_sigma=S``: the part radii only), ``twopassS`` (offline: the
+(the same with ``radius_prior_sigma=S``: the part radii only), ``girthS`` (the same with
+``girth_prior_sigma=S``: the radii's common factor only, their ratios held), ``twopassS`` (offline: the
 recording tracked twice, the second time from the first's refined shape, both refinements
 with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline: the first N
 frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the radii's prior
@@ -176,6 +177,13 @@ def settings(variant: str) -> dict:
             )}  # fmt: skip
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("girth"):
+        try:
+            return {"refine": dataclasses.replace(
+                pt.ShapeFitSettings.tracking(), girth_prior_sigma=float(variant[5:])
+            )}  # fmt: skip
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("twopass"):
         try:
             refine = pt.ShapeFitSettings.tracking()
@@ -213,7 +221,8 @@ def settings(variant: str) -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'twopassS', 'prepassN[r]' (N >= 10), 'sides:G+G...'"
+        "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r]' (N >= 10), "
+        "'sides:G+G...'"
     )
 
 

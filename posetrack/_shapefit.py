@@ -88,6 +88,12 @@ class ShapeFitSettings:
     """``prior_sigma`` of the part radii (the ``*_radius`` fields); None: ``prior_sigma``. The
     landmark-based shape's radii follow the person's height, not their girth, which only the
     depth shows."""
+    girth_prior_sigma: float | None = None
+    """``prior_sigma`` of the refined radii's *common* log-scale factor (their mean, one girth
+    for the whole body); the radii's deviations from it keep ``radius_prior_sigma`` (or
+    ``prior_sigma``), so the ratios between parts stay near the input's. None: no separate
+    prior (each radius alone, as before; the same as ``girth_prior_sigma`` equal to the
+    radii's sigma)."""
     max_change: float = 0.4
     """Log-scale factors are clipped to [-max_change, max_change] (0.4: x0.67 to x1.5)."""
     width: int = 160
@@ -158,11 +164,10 @@ class ShapeFitSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"ShapeFitSettings.{name} must be >= 0, got {v!r}")
-        r = self.radius_prior_sigma
-        if r is not None and not (math.isfinite(r) and r > 0):
-            raise ValueError(
-                f"ShapeFitSettings.radius_prior_sigma must be None or positive, got {r!r}"
-            )
+        for name in ("radius_prior_sigma", "girth_prior_sigma"):
+            r = getattr(self, name)
+            if r is not None and not (math.isfinite(r) and r > 0):
+                raise ValueError(f"ShapeFitSettings.{name} must be None or positive, got {r!r}")
         if self.width < 8 or self.height < 8:
             raise ValueError(
                 f"ShapeFitSettings: width x height must be at least 8x8, got "
@@ -276,6 +281,22 @@ def prior_sigmas(settings: ShapeFitSettings) -> np.ndarray:
     )
 
 
+def shape_prior(u: Float[Array, " field"], settings: ShapeFitSettings) -> Float[Array, ""]:
+    """``sum |u / sigma|^2`` over the refined fields; with ``girth_prior_sigma`` the radii's
+    factors are split into their mean ``g`` (weighted ``n_radii |g / girth_prior_sigma|^2``)
+    and their deviations from it (each with its own sigma). With every radius at one sigma and
+    ``girth_prior_sigma`` equal to it, the split sums to the unsplit prior."""
+    sigma = prior_sigmas(settings)
+    if settings.girth_prior_sigma is None:
+        return jnp.sum((u / sigma) ** 2)
+    radii = np.asarray([f.endswith("_radius") for f in settings.fields], np.float32)
+    n = float(radii.sum())
+    if n == 0:
+        return jnp.sum((u / sigma) ** 2)
+    g = jnp.sum(u * radii) / n
+    return jnp.sum(((u - g * radii) / sigma) ** 2) + n * (g / settings.girth_prior_sigma) ** 2
+
+
 def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
     res_settings = ResidualSettings(loss=settings.loss)
     shape = apply_factors(base, u, settings.fields)
@@ -285,7 +306,7 @@ def _objective(u, poses, base, frames: _Frames, intrinsics, settings):
     w = frames.weight
     n = jnp.sum(w)
     data = jnp.sum(w * (settings.delta_weight * deltas + settings.landmark_weight * lms)) / n
-    prior = settings.prior_weight * jnp.sum((u / prior_sigmas(settings)) ** 2)
+    prior = settings.prior_weight * shape_prior(u, settings)
     return data + prior, (jnp.sum(w * deltas) / n, jnp.sum(w * lms) / n)
 
 

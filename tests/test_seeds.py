@@ -102,6 +102,10 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert two["refine"].prior_sigma == pt.ShapeFitSettings.tracking().prior_sigma
     with pytest.raises(SystemExit, match="twopass"):
         decide.settings("twopass-1")
+    girth = decide.settings("girth1")["refine"]  # the radii's common factor free, not each
+    assert girth.girth_prior_sigma == 1.0 and girth.radius_prior_sigma is None
+    with pytest.raises(SystemExit, match="girth"):
+        decide.settings("girth0")
     pre = decide.settings("prepass40")  # the first 40 frames tracked alone first
     assert pre[decide._PREPASS] == 40 and pre["refine"].radius_prior_sigma == 10.0
     radii = decide.settings("prepass40r")["refine"].fields  # the lengths as measured

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack._shapefit import prior_sigmas, soft_delta
+from posetrack._shapefit import prior_sigmas, shape_prior, soft_delta
 from posetrack._so3 import axis_angle, matrix_to_quat
 
 H, W = 120, 160
@@ -206,7 +206,8 @@ def test_bad_input_raises_naming_the_argument(data, change, name):
     "kw, name",
     [(dict(steps=0), "steps"), (dict(fields=("tail",)), "fields"), (dict(prior_sigma=0.0), "prior_sigma"),
      (dict(radius_prior_sigma=-0.1), "radius_prior_sigma"),
-     (dict(radius_prior_sigma=float("nan")), "radius_prior_sigma")],
+     (dict(radius_prior_sigma=float("nan")), "radius_prior_sigma"),
+     (dict(girth_prior_sigma=0.0), "girth_prior_sigma")],
 )
 def test_bad_settings_raise(kw, name):
     with pytest.raises(ValueError, match=name):
@@ -219,3 +220,20 @@ def test_radius_prior_sigma_applies_to_the_radii_only():
     np.testing.assert_allclose(prior_sigmas(same), [0.2] * 4)
     loose = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2, radius_prior_sigma=0.5)
     np.testing.assert_allclose(prior_sigmas(loose), [0.2, 0.5, 0.2, 0.5])
+
+
+def test_girth_prior_splits_the_radii_into_their_mean_and_deviations():
+    fields = ("thigh", "torso_radius", "shoulder_drop", "shin_radius")
+    u = jnp.asarray([0.1, 0.3, -0.2, 0.1])
+    plain = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2)
+    same = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2, girth_prior_sigma=0.2)
+    np.testing.assert_allclose(shape_prior(u, same), shape_prior(u, plain), rtol=1e-6)
+    # A loose girth prior makes a common change of the radii cheap, not a change of one alone.
+    loose = pt.ShapeFitSettings(fields=fields, prior_sigma=0.2, girth_prior_sigma=10.0)
+    common, alone = jnp.asarray([0.0, 0.3, 0.0, 0.3]), jnp.asarray([0.0, 0.3, 0.0, -0.3])
+    assert float(shape_prior(common, loose)) < 1e-3 * float(shape_prior(common, plain))
+    np.testing.assert_allclose(shape_prior(alone, loose), shape_prior(alone, plain), rtol=1e-6)
+    # The lengths keep their own prior.
+    np.testing.assert_allclose(
+        shape_prior(jnp.asarray([0.1, 0, -0.2, 0]), loose), (0.1**2 + 0.2**2) / 0.2**2, rtol=1e-5
+    )
