@@ -44,13 +44,13 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
 ``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
 (the same with ``radius_prior_sigma=S``: the part radii only), ``girthS`` (the same with
-``girth_prior_sigma=S``: the radii's common factor only, their ratios held), ``twopassS`` (offline: the
-recording tracked twice, the second time from the first's refined shape, both refinements
-with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline: the first N
-frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the radii's prior
-off) the start of the whole recording's tracking, refined the same way; the time is both;
-``prepassNr``: the same with only the part radii refined, the lengths as measured);
-every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
+``girth_prior_sigma=S``: the radii's common factor only, their ratios held), ``twopassS``
+(offline: the recording tracked twice, the second time from the first's refined shape, both
+refinements with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline:
+the first N frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the
+radii's prior off) the start of the whole recording's tracking, refined the same way; the
+time is both; ``prepassNr``: the same with only the part radii refined, the lengths as
+measured); every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
 from __future__ import annotations
