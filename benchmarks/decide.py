@@ -42,7 +42,7 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
-``ShapeFitSettings.tracking()``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
+``ShapeFitSettings.tracking(mode)``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
 (the same with ``radius_prior_sigma=S``: the part radii only), ``girthS`` (the same with
 ``girth_prior_sigma=S``: the radii's common factor only, their ratios held), ``twopassS``
 (offline: the recording tracked twice, the second time from the first's refined shape, both
@@ -142,8 +142,10 @@ _NUMBERED = {
 }
 
 
-def settings(variant: str) -> dict:
-    """The ``Tracker`` keyword arguments of a variant name (see the module docstring)."""
+def settings(variant: str, mode: str = "offline") -> dict:
+    """The ``Tracker`` keyword arguments of a variant name (see the module docstring) in
+    ``mode`` (the shape variants start from that mode's ``ShapeFitSettings.tracking``)."""
+    tracking = pt.ShapeFitSettings.tracking("online" if mode == "online" else "offline")
     if variant == "default":
         return {}
     if variant == "inbatch":
@@ -173,29 +175,29 @@ def settings(variant: str) -> dict:
         field = "radius_prior_sigma" if kind == "r" else "prior_sigma"
         try:
             return {"refine": dataclasses.replace(
-                pt.ShapeFitSettings.tracking(), **{field: float(sigma)}, max_change=float(change)
+                tracking, **{field: float(sigma)}, max_change=float(change)
             )}  # fmt: skip
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("girth"):
         try:
             return {"refine": dataclasses.replace(
-                pt.ShapeFitSettings.tracking(), girth_prior_sigma=float(variant[5:])
+                tracking, girth_prior_sigma=float(variant[5:])
             )}  # fmt: skip
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("twopass"):
         try:
-            refine = pt.ShapeFitSettings.tracking()
+            refine = tracking
             refine = dataclasses.replace(refine, radius_prior_sigma=float(variant[7:]))
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
     frames = variant.removeprefix("prepass").removesuffix("r")
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
-        fields = _RADII if variant.endswith("r") else pt.ShapeFitSettings.tracking().fields
+        fields = _RADII if variant.endswith("r") else tracking.fields
         refine = dataclasses.replace(
-            pt.ShapeFitSettings.tracking(), radius_prior_sigma=10.0, fields=fields
+            tracking, radius_prior_sigma=10.0, fields=fields
         )
         return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
@@ -299,7 +301,7 @@ def main() -> int:
         for text in (a.side_seeds, a.real_seeds, a.procedural_seeds, a.standard_seeds)
     )
     chosen = clips(real, side, not a.no_base, procedural, standard)
-    variants = {v: settings(v) for v in a.variants.split(",")}
+    variants = {v: settings(v, a.mode) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]
     track(todo, variants, a.mode, a.out)

@@ -299,7 +299,7 @@ def run_clip(
     ).keypoints3d
     # The body shape refined once, after 60 tracked frames (the online default until
     # 2026-11-27), instead of after 20 and again after 60.
-    once = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_first=0)
+    once = dataclasses.replace(pt.ShapeFitSettings.tracking("online"), online_first=0)
     out[f"MHT_h online L={LAG}, refined once"] = pt.track(
         *args, seq.intrinsics, mode="online", refine=once
     ).keypoints3d

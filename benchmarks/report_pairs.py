@@ -93,7 +93,7 @@ def main() -> int:
     except ValueError as e:
         ap.error(str(e))
     group = f"report {a.set}"
-    variants = {v: settings(v) for v in a.variants.split(",") if v}
+    variants = {v: settings(v, a.mode) for v in a.variants.split(",") if v}
     if not variants and not a.stored:
         ap.error("nothing to do: give --variants to track or --stored rows to read")
     stored = join([(r, spec) for spec in a.stored for r in stored_records(spec, clips, group)])

@@ -124,15 +124,29 @@ class ShapeFitSettings:
     starts again from the shape the tracker began with (the same prior), on its own frames."""
 
     @classmethod
-    def tracking(cls) -> ShapeFitSettings:
-        """What :class:`~posetrack.Tracker` runs after its forward pass in ``mode="offline"``
-        (``refine="auto"``): 8 frames, 100 steps, the whole image at 80 x 60. On tuning seeds
-        100-105 (6 motions x occlusion 0/2, both generator varieties) it gave the same D as the
-        defaults within 0.3 mm for a tenth of the time (about 1-3 s on 2 CPU cores); one
-        program serves every recording. Online it also refines once after 20 tracked frames
-        (``online_first``; then again after 60, from the landmark-based shape): 59.6 -> 56.8
-        mm online on 40 tuning clips (seeds 136-157, benchmarks/README.md)."""
-        return cls(width=80, height=60, steps=100, frames=8, crop=False, online_first=20)
+    def tracking(cls, mode: str = "offline") -> ShapeFitSettings:
+        """What :class:`~posetrack.Tracker` runs in ``mode`` (``refine="auto"``): 8 frames,
+        100 steps, the whole image at 80 x 60. On tuning seeds 100-105 (6 motions x occlusion
+        0/2, both generator varieties) it gave the same D as the defaults within 0.3 mm for a
+        tenth of the time (about 1-3 s on 2 CPU cores); one program serves every recording.
+        Online it also refines once after 20 tracked frames (``online_first``; then again after
+        60, from the landmark-based shape): 59.6 -> 56.8 mm online on 40 tuning clips (seeds
+        136-157, benchmarks/README.md).
+
+        Offline (after the forward pass, for the smoother) the radii's common factor is free
+        (``girth_prior_sigma`` 1.0: one girth for the body, the ratios between parts held):
+        D -0.70 mm on 44 fresh tuning runs (t -3.8, every group better) and -XX on 44 more.
+        Online it is not (a third more swapped-limb frames on the same runs: the per-frame
+        pass tracks with the refined shape there)."""
+        if mode not in ("offline", "online"):
+            raise ValueError(
+                f"ShapeFitSettings.tracking: mode must be 'offline' or 'online', got {mode!r}"
+            )
+        girth = 1.0 if mode == "offline" else None
+        return cls(
+            width=80, height=60, steps=100, frames=8, crop=False, online_first=20,
+            girth_prior_sigma=girth,
+        )  # fmt: skip
 
     def __post_init__(self):
         unknown = [f for f in self.fields if f not in SHAPE_FIELDS]

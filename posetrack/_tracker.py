@@ -484,8 +484,9 @@ class Tracker:
     **Body shape from depth** (``refine="auto"``, the default offline and online, unless
     ``shape`` is given): :func:`refine_shape` refits the body dimensions and the poses of 8
     tracked frames against their depth (:meth:`ShapeFitSettings.tracking`). Offline it runs
-    after the forward pass on frames spread over the recording, and the motion model then fits
-    every frame with the refined shape (the per-frame poses' keypoints as its anchor). Online
+    after the forward pass on frames spread over the recording, the part radii free to grow or
+    shrink together (one girth for the body), and the motion model then fits every frame with
+    the refined shape (the per-frame poses' keypoints as its anchor). Online
     it runs causally, when ``ShapeFitSettings.online_first`` (20) and again when
     ``online_after`` (60) frames have been tracked, each time on frames among those (the
     second from the landmark-based shape again), and the frames after are tracked with the
@@ -598,7 +599,7 @@ class Tracker:
         self.duplicates: DuplicateSettings | None = duplicates
         if isinstance(refine, str) and refine == "auto":
             auto = mode != "per-frame" and shape is None
-            refine = ShapeFitSettings.tracking() if auto else None
+            refine = ShapeFitSettings.tracking(mode) if auto else None
         if refine is not None and not isinstance(refine, ShapeFitSettings):
             raise TypeError(
                 f"Tracker: refine must be 'auto', posetrack.ShapeFitSettings or None, got "

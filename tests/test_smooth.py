@@ -478,7 +478,9 @@ def test_online_refines_the_body_shape_causally(clip, modes, online_lag0_kp_shap
     refinement (nothing from the future), the frames after use the refined shape."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     # 8 frames (the program the offline runs above compiled), after 16 tracked frames.
-    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=16, online_first=0)
+    settings = dataclasses.replace(
+        pt.ShapeFitSettings.tracking("online"), online_after=16, online_first=0
+    )
     tr = pt.Tracker(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(*args)
     plain = online_lag0_kp_shape
@@ -509,7 +511,9 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
             starts.append((self.shape.to_dict(), len(params), self._online_tracked))
             super()._refine_on(params, *rest)
 
-    settings = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_first=8, online_after=16)
+    settings = dataclasses.replace(
+        pt.ShapeFitSettings.tracking("online"), online_first=8, online_after=16
+    )
     tr = Spy(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
     plain = online_lag0_kp_shape
@@ -630,8 +634,14 @@ def test_prepare_builds_the_refinement_programs_the_run_uses(clip, modes):
 
 def test_shape_refinement_is_offline_and_online_and_checked(clip):
     tr = pt.Tracker(clip.intrinsics)
-    assert tr.refine == pt.ShapeFitSettings.tracking()
-    assert pt.Tracker(clip.intrinsics, mode="online").refine == pt.ShapeFitSettings.tracking()
+    assert tr.refine == pt.ShapeFitSettings.tracking("offline")
+    online = pt.Tracker(clip.intrinsics, mode="online").refine
+    assert online == pt.ShapeFitSettings.tracking("online")
+    # Offline the radii's common factor is free; online it is not (benchmarks/README.md).
+    assert tr.refine.girth_prior_sigma == 1.0 and online.girth_prior_sigma is None
+    assert dataclasses.replace(tr.refine, girth_prior_sigma=None) == online
+    with pytest.raises(ValueError, match="mode"):
+        pt.ShapeFitSettings.tracking("per-frame")
     assert pt.Tracker(clip.intrinsics, mode="per-frame").refine is None
     # A shape given by the caller is kept as given.
     assert pt.Tracker(clip.intrinsics, shape=pt.BodyShape.default()).refine is None
@@ -757,7 +767,9 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     refinement that comes due meanwhile runs after the decision, on frames seen before it."""
     sw = np.arange(12, 28)
     kp, conf = _arm_swap(clip, sw)
-    refine = dataclasses.replace(pt.ShapeFitSettings.tracking(), online_after=13, online_first=0)
+    refine = dataclasses.replace(
+        pt.ShapeFitSettings.tracking("online"), online_after=13, online_first=0
+    )
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=refine)
     fixed = tr.run(clip.depth, kp, conf)
     raw = pt.track(clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None)
