@@ -135,7 +135,8 @@ class ShapeFitSettings:
 
         Offline (after the forward pass, for the smoother) the radii's common factor is free
         (``girth_prior_sigma`` 1.0: one girth for the body, the ratios between parts held):
-        D -0.70 mm on 44 fresh tuning runs (t -3.8, every group better) and -XX on 44 more.
+        D -0.70 and -0.65 mm on two sets of 44 fresh tuning runs (t -3.8, -3.3), every report
+        set's clean and occluded D lower by 0.2-1.1 mm (benchmarks/README.md, "One girth").
         Online it is not (a third more swapped-limb frames on the same runs: the per-frame
         pass tracks with the refined shape there)."""
         if mode not in ("offline", "online"):
