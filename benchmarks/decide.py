@@ -188,17 +188,14 @@ def settings(variant: str, mode: str = "offline") -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("twopass"):
         try:
-            refine = tracking
-            refine = dataclasses.replace(refine, radius_prior_sigma=float(variant[7:]))
+            refine = dataclasses.replace(tracking, radius_prior_sigma=float(variant[7:]))
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
     frames = variant.removeprefix("prepass").removesuffix("r")
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
         fields = _RADII if variant.endswith("r") else tracking.fields
-        refine = dataclasses.replace(
-            tracking, radius_prior_sigma=10.0, fields=fields
-        )
+        refine = dataclasses.replace(tracking, radius_prior_sigma=10.0, fields=fields)
         return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}

@@ -302,11 +302,9 @@ def shape_prior(u: Float[Array, " field"], settings: ShapeFitSettings) -> Float[
     and their deviations from it (each with its own sigma). With every radius at one sigma and
     ``girth_prior_sigma`` equal to it, the split sums to the unsplit prior."""
     sigma = prior_sigmas(settings)
-    if settings.girth_prior_sigma is None:
-        return jnp.sum((u / sigma) ** 2)
     radii = np.asarray([f.endswith("_radius") for f in settings.fields], np.float32)
     n = float(radii.sum())
-    if n == 0:
+    if settings.girth_prior_sigma is None or n == 0:  # no radii refined: nothing to split
         return jnp.sum((u / sigma) ** 2)
     g = jnp.sum(u * radii) / n
     return jnp.sum(((u - g * radii) / sigma) ** 2) + n * (g / settings.girth_prior_sigma) ** 2

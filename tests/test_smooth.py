@@ -477,7 +477,7 @@ def test_online_refines_the_body_shape_causally(clip, modes, online_lag0_kp_shap
     frames already seen: every frame up to then is what the tracker gives without the
     refinement (nothing from the future), the frames after use the refined shape."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
-    # 8 frames (the program the offline runs above compiled), after 16 tracked frames.
+    # 8 frames, after 16 tracked frames.
     settings = dataclasses.replace(
         pt.ShapeFitSettings.tracking("online"), online_after=16, online_first=0
     )
