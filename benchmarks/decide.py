@@ -50,7 +50,8 @@ refinements with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN
 the first N frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the
 radii's prior off) the start of the whole recording's tracking, refined the same way; the
 time is both; ``prepassNr``: the same with only the part radii refined, the lengths as
-measured); every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
+measured; ``prepassNg``: the same with the mode's own refinement settings, offline the girth
+prior); every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
 """
 
 from __future__ import annotations
@@ -192,9 +193,12 @@ def settings(variant: str, mode: str = "offline") -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {"refine": refine, _SECOND_PASS: True}
-    frames = variant.removeprefix("prepass").removesuffix("r")
+    frames, kind = variant.removeprefix("prepass"), variant[-1:]
+    frames = frames[:-1] if kind in ("r", "g") else frames
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
-        fields = _RADII if variant.endswith("r") else tracking.fields
+        if kind == "g":  # the mode's own refinement (offline: the girth prior)
+            return {"refine": tracking, _PREPASS: int(frames)}
+        fields = _RADII if kind == "r" else tracking.fields
         refine = dataclasses.replace(tracking, radius_prior_sigma=10.0, fields=fields)
         return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
@@ -220,7 +224,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r]' (N >= 10), "
+        "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r|g]' (N >= 10), "
         "'sides:G+G...'"
     )
 

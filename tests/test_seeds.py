@@ -110,7 +110,9 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert pre[decide._PREPASS] == 40 and pre["refine"].radius_prior_sigma == 10.0
     radii = decide.settings("prepass40r")["refine"].fields  # the lengths as measured
     assert radii and all(f.endswith("_radius") for f in radii) and "thigh" not in radii
-    for bad in ("prepass", "prepass5", "prepass4x", "prepass40rr"):
+    shipped = decide.settings("prepass40g")  # the mode's own refinement: offline, girth
+    assert shipped[decide._PREPASS] == 40 and shipped["refine"] == pt.ShapeFitSettings.tracking()
+    for bad in ("prepass", "prepass5", "prepass4x", "prepass40rr", "prepass40gr", "prepassg"):
         with pytest.raises(SystemExit, match="prepassN"):
             decide.settings(bad)
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
