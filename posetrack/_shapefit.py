@@ -137,8 +137,9 @@ class ShapeFitSettings:
         (``girth_prior_sigma`` 1.0: one girth for the body, the ratios between parts held):
         D -0.70 and -0.65 mm on two sets of 44 fresh tuning runs (t -3.8, -3.3), every report
         set's clean and occluded D lower by 0.2-1.1 mm (benchmarks/README.md, "One girth").
-        Online it is not (a third more swapped-limb frames on the same runs: the per-frame
-        pass tracks with the refined shape there)."""
+        Online it is not: its first screen failed on swapped-limb frames (a third more), an
+        excess the same runs on another CPU did not show, and a fresh screen found no gain
+        (-0.13 mm, t -0.36; benchmarks/README.md)."""
         if mode not in ("offline", "online"):
             raise ValueError(
                 f"ShapeFitSettings.tracking: mode must be 'offline' or 'online', got {mode!r}"
