@@ -196,10 +196,11 @@ def settings(variant: str, mode: str = "offline") -> dict:
     frames, kind = variant.removeprefix("prepass"), variant[-1:]
     frames = frames[:-1] if kind in ("r", "g") else frames
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
-        if kind == "g":  # the mode's own refinement (offline: the girth prior)
-            return {"refine": tracking, _PREPASS: int(frames)}
         fields = _RADII if kind == "r" else tracking.fields
-        refine = dataclasses.replace(tracking, radius_prior_sigma=10.0, fields=fields)
+        refine = (  # "g": the mode's own refinement (offline: the girth prior)
+            tracking if kind == "g"
+            else dataclasses.replace(tracking, radius_prior_sigma=10.0, fields=fields)
+        )  # fmt: skip
         return {"refine": refine, _PREPASS: int(frames)}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
