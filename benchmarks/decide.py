@@ -48,10 +48,11 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (offline: the recording tracked twice, the second time from the first's refined shape, both
 refinements with ``radius_prior_sigma=S``; the time is both passes'), ``prepassN`` (offline:
 the first N frames tracked alone first, their refined shape (``radius_prior_sigma`` 10: the
-radii's prior off) the start of the whole recording's tracking, refined the same way; the
-time is both; ``prepassNr``: the same with only the part radii refined, the lengths as
-measured; ``prepassNg``: the same with the mode's own refinement settings, offline the girth
-prior); every other setting is the mode's default. ~25-40 s per run on 2 CPU cores.
+radii's prior off) the start of the whole recording's tracking, refined the same way:
+``ShapeFitSettings.offline_first``; the time is both; ``prepassNr``: the same with only the
+part radii refined, the lengths as measured; ``prepassNg``: the same with the mode's own
+refinement settings, offline the girth prior); every other setting is the mode's default.
+~25-40 s per run on 2 CPU cores.
 """
 
 from __future__ import annotations
@@ -196,12 +197,15 @@ def settings(variant: str, mode: str = "offline") -> dict:
     frames, kind = variant.removeprefix("prepass"), variant[-1:]
     frames = frames[:-1] if kind in ("r", "g") else frames
     if variant.startswith("prepass") and frames.isdigit() and int(frames) >= 10:
+        if mode != "offline":
+            raise SystemExit(f"error: --variants: {variant!r}: the shape pre-pass is offline's")
         fields = _RADII if kind == "r" else tracking.fields
         refine = (  # "g": the mode's own refinement (offline: the girth prior)
             tracking if kind == "g"
             else dataclasses.replace(tracking, radius_prior_sigma=10.0, fields=fields)
         )  # fmt: skip
-        return {"refine": refine, _PREPASS: int(frames)}
+        # The tracker's own pre-pass (the same as two trackers by hand: tests/test_smooth.py).
+        return {"refine": dataclasses.replace(refine, offline_first=int(frames))}
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -232,8 +236,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
 
 #: The part radii among the body-shape fields (``prepassNr``).
 _RADII = tuple(f for f in pt.ShapeFitSettings().fields if f.endswith("_radius"))
-#: ``settings`` keys of the ``twopassS`` and ``prepassN`` variants (not ``Tracker`` keywords).
-_SECOND_PASS, _PREPASS = "second_pass", "prepass"
+#: The ``settings`` key of the ``twopassS`` variants (not a ``Tracker`` keyword).
+_SECOND_PASS = "second_pass"
 
 
 def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
@@ -251,12 +255,7 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
             for name, kwargs in variants.items():
                 t0 = time.perf_counter()
                 kwargs = dict(kwargs)
-                second, first = kwargs.pop(_SECOND_PASS, False), kwargs.pop(_PREPASS, 0)
-                if first:  # the first frames alone; their refined shape starts the recording
-                    pre = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs).run(
-                        seq.depth[:first], seq.keypoints2d[:first], seq.confidence[:first]
-                    )  # fmt: skip
-                    kwargs["shape"] = pre.shape
+                second = kwargs.pop(_SECOND_PASS, False)
                 tr = pt.Tracker(seq.intrinsics, mode=mode, seed=ts, **kwargs)
                 res = tr.run(seq.depth, seq.keypoints2d, seq.confidence)
                 if second:  # again, from the first pass's refined shape

@@ -83,7 +83,8 @@ def track_many(
         progress: ``progress(frames_done, total, postfix)`` after every frame of any
             sequence (``total``: ``total_frames``, else the frames of the sequences started;
             offline with ``SmoothSettings(both_ways=True)`` each frame counts twice, once per
-            pass: give ``total_frames`` accordingly).
+            pass, and a shape pre-pass's frames count too: give ``total_frames`` as
+            :meth:`Tracker.progress_frames <posetrack.Tracker.progress_frames>` counts).
         on_result: ``on_result(index, result_or_error)`` as each sequence finishes (in a
             worker thread), e.g. to write its files at once.
         errors: ``"raise"``: after every sequence has run, re-raise the first failure;
@@ -128,8 +129,8 @@ def track_many(
         intr, depths, kp, conf = _unpack(items[i])
         items[i] = None  # let a loaded recording go once tracked
         tracker = Tracker(intr, config, seed=seed, **tracker_options)
-        with lock:  # progress counts every pass over the frames (offline both ways: two)
-            counts["total"] += len(depths) * tracker.passes(len(depths))
+        with lock:  # progress counts every pass (offline: a shape pre-pass, both ways)
+            counts["total"] += tracker.progress_frames(len(depths))
         batcher = batcher_for(tracker)
         slot = batcher.join()
         tracker._batched = (batcher, slot)

@@ -122,6 +122,12 @@ class ShapeFitSettings:
     (0: not), on the best-observed frame of each of ``frames`` stretches of them; the frames
     after it are tracked with that shape until the refinement at ``online_after``, which
     starts again from the shape the tracker began with (the same prior), on its own frames."""
+    offline_first: int = 0
+    """``mode="offline"``: before the recording is tracked, track its first this many frames
+    alone and refine the shape on them (the best-observed frame of each of ``frames`` stretches
+    of them); the whole recording is then tracked from that shape, and refined again after
+    (0: not). A recording of no more frames than this has no pre-pass (the refinement after
+    the forward pass sees the same frames)."""
 
     @classmethod
     def tracking(cls, mode: str = "offline") -> ShapeFitSettings:
@@ -167,6 +173,11 @@ class ShapeFitSettings:
             raise ValueError(
                 f"ShapeFitSettings.online_first must be 0 or in [frames ({self.frames}), "
                 f"online_after ({self.online_after})), got {self.online_first}"
+            )
+        if self.offline_first and self.offline_first < self.frames:
+            raise ValueError(
+                f"ShapeFitSettings.offline_first must be 0 or >= frames ({self.frames}), got "
+                f"{self.offline_first}"
             )
         if self.steps < 1:
             raise ValueError(f"ShapeFitSettings.steps must be >= 1, got {self.steps}")

@@ -486,7 +486,9 @@ class Tracker:
     tracked frames against their depth (:meth:`ShapeFitSettings.tracking`). Offline it runs
     after the forward pass on frames spread over the recording, the part radii free to grow or
     shrink together (one girth for the body), and the motion model then fits every frame with
-    the refined shape (the per-frame poses' keypoints as its anchor). Online
+    the refined shape (the per-frame poses' keypoints as its anchor); with
+    ``ShapeFitSettings.offline_first`` (opt-in) the first frames are tracked alone first and
+    the whole recording starts from their refined shape (:meth:`progress_frames`). Online
     it runs causally, when ``ShapeFitSettings.online_first`` (20) and again when
     ``online_after`` (60) frames have been tracked, each time on frames among those (the
     second from the landmark-based shape again), and the frames after are tracked with the
@@ -558,6 +560,13 @@ class Tracker:
         chunk: int = RUN_CHUNK,
         duplicates: DuplicateSettings | str | None = "auto",
     ):
+        # As given: the offline shape pre-pass (``refine.offline_first``) tracks with them.
+        self._options = dict(
+            config=config, shape=shape, seed=seed, depth_scale=depth_scale, person=person,
+            follow=follow, mode=mode, lag=lag, motion=motion, fps=fps, sides=sides,
+            refine=refine, chunk=chunk, duplicates=duplicates,
+        )  # fmt: skip
+        self._intrinsics_given = intrinsics
         if mode not in MODES:
             raise ValueError(f"Tracker: mode must be one of {MODES}, got {mode!r}")
         if isinstance(lag, bool) or not isinstance(lag, (int, np.integer)) or lag < 0:
@@ -672,7 +681,13 @@ class Tracker:
         """Offline with :attr:`SmoothSettings.both_ways`: frames the last :meth:`run` averaged
         over its two passes (both tracked the same person there)."""
         self.refine_s = 0.0
+        self.prepass_s = self._prepass_refine_s = 0.0
+        """Seconds of the last offline :meth:`run`'s shape pre-pass (``refine.offline_first``;
+        0 without one): its tracking and refinement, part of :attr:`refine_s` too."""
         self._prepare_started = False
+        # Inside track_many: whether run() gives the batch slot up after its steps (a shape
+        # pre-pass's tracker does not: its recording is tracked again in the same slot).
+        self._leaves_slot = True
         # (StepBatcher, slot) when track_many runs this tracker's steps batched with others'.
         self._batched = None
         self._found_floor: np.ndarray | None = None  # the first in this run (TrackResult.floor)
@@ -1405,6 +1420,15 @@ class Tracker:
         if T == 0:
             raise ValueError("run: the sequence has no frames")
         self._start_preparing(update=self.mode == "online")
+        pre = self.prepass_frames(T)
+        progress_pre = None
+        if progress is not None:  # one bar: the pre-pass's frames, then each pass's
+            total = pre + T * self.passes(T)
+            progress_pre, progress = _share(progress, 0, total), _share(progress, pre, total)
+        pre_report = None  # the pre-pass's refinement (refine_report["offline_first"])
+        self.prepass_s = 0.0
+        if pre:
+            pre_report = self._shape_prepass(depths, keypoints2d, confidence, pre, progress_pre)
         if self.shape is None:
             n = min(self.config.shape_frames, T)
             t0 = time.perf_counter()
@@ -1450,7 +1474,7 @@ class Tracker:
         lm3, has_d, det, kp2, lm_conf = out.lm3, out.has_d, out.det, out.kp2, out.lm_conf
         person, num_people = out.person, out.num_people
         exchanged = None if self.sides is None else out.exchanged
-        if self._batched is not None:  # no more steps: the other sequences need not wait
+        if self._batched is not None and self._leaves_slot:  # no more steps: others need not wait
             self._batched[0].leave(self._batched[1])
         per_frame = interpolated = None
         if self.mode == "online" and self.lag > 0:
@@ -1469,6 +1493,9 @@ class Tracker:
                 for rows in (out,) if back is None else (out, back):
                     rows.lm3 = _along_rays(rows.lm3, rows.has_d, moved)
                 lm3 = out.lm3
+                if pre:  # the pre-pass's refinement, as online's earlier one is reported
+                    self.refine_s += self._prepass_refine_s
+                    self.refine_report["offline_first"] = pre_report
             if valid.any():
                 per_frame = kp3.copy()
                 t0 = time.perf_counter()
@@ -1799,6 +1826,37 @@ class Tracker:
             kept.update(kept_ex)
         return stop
 
+    def prepass_frames(self, frames: int) -> int:
+        """Frames of the offline shape pre-pass :meth:`run` makes over a recording of
+        ``frames`` frames (``refine.offline_first``; 0 when it makes none)."""
+        return prepass_frames(self.mode, self.refine, frames)
+
+    def progress_frames(self, frames: int) -> int:
+        """Frames :meth:`run`'s progress counts over a recording of ``frames`` frames: the
+        shape pre-pass's, then each pass's (:meth:`passes`)."""
+        return self.prepass_frames(frames) + frames * self.passes(frames)
+
+    def _shape_prepass(self, depths, keypoints2d, confidence, n: int, progress) -> dict | None:
+        """The offline shape pre-pass (``refine.offline_first``): a tracker as this one was
+        made (its seed and settings, no pre-pass) tracks the first ``n`` frames and refines
+        the shape on them; that shape becomes :attr:`shape`, the start of the whole
+        recording's tracking. Inside :func:`~posetrack.track_many` it steps in this tracker's
+        batch slot. Returns its :attr:`refine_report` (``None`` if it could not refine)."""
+        t0 = time.perf_counter()
+        options = dict(self._options, shape=self.shape)
+        options["refine"] = dataclasses.replace(self.refine, offline_first=0)
+        pre = Tracker(self._intrinsics_given, **options)
+        pre._batched, pre._leaves_slot = self._batched, False
+        pre.run(
+            *(Reindexed(x, np.arange(n)) for x in (depths, keypoints2d, confidence)),
+            progress=progress,
+        )
+        self.shape = pre.shape
+        self.compile_s += pre.compile_s
+        self.prepass_s = time.perf_counter() - t0
+        self._prepass_refine_s = pre.refine_s
+        return pre.refine_report
+
     def passes(self, frames: int) -> int:
         """How many times :meth:`run` goes through a recording of ``frames`` frames (its
         progress counts each pass; :func:`run_passes`)."""
@@ -1976,6 +2034,16 @@ def run_passes(mode: str, motion: SmoothSettings, frames: int) -> int:
     """Passes :meth:`Tracker.run` makes over ``frames`` frames in ``mode``: 2 offline with
     :attr:`SmoothSettings.both_ways` (forwards, then backwards), else 1."""
     return 2 if mode == "offline" and motion.both_ways and frames > 1 else 1
+
+
+def prepass_frames(mode: str, refine: ShapeFitSettings | str | None, frames: int) -> int:
+    """Frames of the offline shape pre-pass :meth:`Tracker.run` makes over ``frames`` frames
+    (``refine.offline_first``; 0 when it makes none). ``refine`` as :class:`Tracker` takes it
+    (``"auto"``: with no ``shape`` given)."""
+    if isinstance(refine, str) and refine == "auto":
+        refine = ShapeFitSettings.tracking(mode) if mode != "per-frame" else None
+    first = 0 if refine is None or mode != "offline" else refine.offline_first
+    return first if 0 < first < frames else 0
 
 
 def _share(progress: ProgressCallback, offset: int, total: int) -> ProgressCallback:

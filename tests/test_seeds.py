@@ -106,15 +106,17 @@ def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     assert girth.girth_prior_sigma == 1.0 and girth.radius_prior_sigma is None
     with pytest.raises(SystemExit, match="girth"):
         decide.settings("girth0")
-    pre = decide.settings("prepass40")  # the first 40 frames tracked alone first
-    assert pre[decide._PREPASS] == 40 and pre["refine"].radius_prior_sigma == 10.0
+    pre = decide.settings("prepass40")["refine"]  # the first 40 frames tracked alone first
+    assert pre.offline_first == 40 and pre.radius_prior_sigma == 10.0
     radii = decide.settings("prepass40r")["refine"].fields  # the lengths as measured
     assert radii and all(f.endswith("_radius") for f in radii) and "thigh" not in radii
-    shipped = decide.settings("prepass40g")  # the mode's own refinement: offline, girth
-    assert shipped[decide._PREPASS] == 40 and shipped["refine"] == pt.ShapeFitSettings.tracking()
+    shipped = decide.settings("prepass40g")["refine"]  # the mode's own refinement: girth
+    assert shipped == dataclasses.replace(pt.ShapeFitSettings.tracking(), offline_first=40)
     for bad in ("prepass", "prepass5", "prepass4x", "prepass40rr", "prepass40gr", "prepassg"):
         with pytest.raises(SystemExit, match="prepassN"):
             decide.settings(bad)
+    with pytest.raises(SystemExit, match="offline"):  # the pre-pass is offline's alone
+        decide.settings("prepass40g", "online")
     # --real-seeds: wide real motion clips of tuning seeds, never report seeds.
     real = decide.clips([100, 107])
     assert [c[1] for c in real] == [100, 107] and {c[3] for c in real} == {"wide"}

@@ -536,6 +536,41 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
         pt.ShapeFitSettings(frames=8, online_first=60, online_after=60)
 
 
+def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
+    """``offline_first``: the first 16 frames are tracked by a tracker as this one was made
+    (its seed, no pre-pass) and the shape refined on them; the whole recording is then
+    tracked from that shape and refined again, as two trackers by hand would do it. One
+    progress bar counts the pre-pass's frames, then the recording's."""
+    settings = dataclasses.replace(pt.ShapeFitSettings.tracking("offline"), offline_first=16)
+    alone = dataclasses.replace(settings, offline_first=0)
+    calls = []
+    tr = pt.Tracker(clip.intrinsics, refine=settings)
+    res = tr.run(
+        clip.depth, clip.keypoints2d, clip.confidence,
+        progress=lambda done, total, postfix="": calls.append((done, total)),
+    )  # fmt: skip
+    assert (tr.prepass_frames(40), tr.prepass_frames(16), tr.progress_frames(40)) == (16, 0, 56)
+    assert [d for d, _ in calls] == list(range(1, 57)) and {t for _, t in calls} == {56}
+    first = tr.refine_report["offline_first"]
+    assert first["frames_used"].max() < 16 and tr.refine_report["frames_used"].max() >= 16
+    assert tr.prepass_s > 0
+    pre = pt.Tracker(clip.intrinsics, refine=alone).run(
+        clip.depth[:16], clip.keypoints2d[:16], clip.confidence[:16]
+    )  # fmt: skip
+    landmark_shape = modes["offline, kp shape"].shape.to_dict()
+    assert pre.shape.to_dict() != landmark_shape  # the pre-pass refined it
+    by_hand = pt.Tracker(clip.intrinsics, refine=alone, shape=pre.shape)
+    hand = by_hand.run(clip.depth, clip.keypoints2d, clip.confidence)
+    np.testing.assert_array_equal(res.keypoints3d, hand.keypoints3d)
+    assert res.shape.to_dict() == hand.shape.to_dict() != pre.shape.to_dict()
+    # Without the option (the default) nothing changes: a recording as long as the
+    # pre-pass has none either.
+    assert pt.Tracker(clip.intrinsics, refine=alone).prepass_frames(40) == 0
+    assert pt.Tracker(clip.intrinsics, mode="online", refine=settings).prepass_frames(40) == 0
+    with pytest.raises(ValueError, match="offline_first"):
+        pt.ShapeFitSettings(frames=8, offline_first=4)
+
+
 def first_dropped_detection(clip) -> int:
     """The first frame where the offline default's duplicate filter withholds a detection
     (replayed on the host on the detections the tracker follows; ``len(clip.depth)`` if

@@ -116,7 +116,7 @@ def _join_processes(args) -> tuple[int, int]:
 def track_many_command(args) -> int:
     from .. import io
     from .._many import track_many
-    from .._tracker import run_passes
+    from .._tracker import prepass_frames, run_passes
     from ._cli import (
         _followed_detections,
         _lag,
@@ -229,12 +229,16 @@ def track_many_command(args) -> int:
     bar = None if args.quiet else ProgressBar("tracking")
     # Rows of one depth size share a batch: group them (stable within a size).
     order = sorted(range(len(todo)), key=lambda k: (todo[k].intrinsics.shape, k))
+    refine = _refine(args)
     track_many(
         [loader(k) for k in order], config, batch=args.batch, seed=args.seed, mode=mode,
         progress=bar, errors="return",
-        total_frames=sum(r.frames * run_passes(mode, motion, r.frames) for r in todo),
+        total_frames=sum(  # the shape pre-pass's frames, then each pass's
+            prepass_frames(mode, refine, r.frames) + r.frames * run_passes(mode, motion, r.frames)
+            for r in todo
+        ),
         on_result=lambda i, res: finished(order[i], res),
-        refine=_refine(args), lag=_lag(args), motion=motion,
+        refine=refine, lag=_lag(args), motion=motion,
     )  # fmt: skip
     summary = _record(out, manifest, names, {})
     c = summary["counts"]
