@@ -1952,11 +1952,13 @@ class Tracker:
         self._duplicate_filter = copy.deepcopy(duplicate_filter)
 
     def _refine_settings(self) -> ShapeFitSettings:
-        """:attr:`refine`, its image no larger than the sensor's."""
+        """:attr:`refine`, its image no larger than the sensor's. The shape pre-pass is the
+        tracker's business, not the program's: with or without it, one program."""
         H, W = self.intrinsics.shape
         return dataclasses.replace(
-            self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H)
-        )
+            self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H),
+            offline_first=0,
+        )  # fmt: skip
 
     def _refine_on(self, params, depths, kp2, lm_conf, frames_used) -> None:
         """Refine :attr:`shape` with :func:`refine_shape` on F frames (their poses as the

@@ -23,7 +23,7 @@ import posetrack
 from posetrack import _body as body
 from posetrack import io
 from posetrack._depthobs import NO_FLOOR
-from posetrack.app._cli import _lag, _mode, _motion, build_parser, main
+from posetrack.app._cli import _lag, _mode, _motion, _refine, build_parser, main
 from posetrack.app._export import BVH_KEYPOINTS
 from posetrack.app._overlay import video_codec
 
@@ -708,6 +708,30 @@ def test_online_flag_waits_the_default_lag_unless_told(command):
     assert parse("--online", "0") == ("online", 0)
     assert parse("--online", "4") == ("online", 4)
     assert parse() == ("offline", 0) and parse("--per-frame") == ("per-frame", 0)
+
+
+@pytest.mark.parametrize("command", ["track", "track-many", "warmup"])
+def test_shape_prepass_flag_sets_the_offline_pre_pass_and_refuses_other_modes(command):
+    required = {
+        "track": ["--out", "o", "--depth", "d"],
+        "track-many": ["--out", "o", "--manifest", "m.csv"],
+        "warmup": ["--size", "320x240"],
+    }[command]
+
+    def refine(*flags):
+        return _refine(build_parser().parse_args([command, *required, *flags]))
+
+    assert refine() == "auto" and refine("--no-refine-shape") is None
+    shipped = posetrack.ShapeFitSettings.tracking("offline")
+    assert refine("--shape-prepass", "40") == dataclasses.replace(shipped, offline_first=40)
+    for flag, match in (
+        ("--online", "offline mode's"), ("--per-frame", "offline mode's"),
+        ("--no-refine-shape", "does not go with --no-refine-shape"),
+    ):  # fmt: skip
+        with pytest.raises(ValueError, match=f"--shape-prepass 40 .*{match}"):
+            refine("--shape-prepass", "40", flag)
+    with pytest.raises(ValueError, match="--shape-prepass 4: .*offline_first must be 0 or >= "):
+        refine("--shape-prepass", "4")
 
 
 @pytest.mark.parametrize("command", ["track", "track-many"])

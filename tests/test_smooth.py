@@ -541,8 +541,13 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     (its seed, no pre-pass) and the shape refined on them; the whole recording is then
     tracked from that shape and refined again, as two trackers by hand would do it. One
     progress bar counts the pre-pass's frames, then the recording's."""
+    from posetrack import _shapefit
+
     settings = dataclasses.replace(pt.ShapeFitSettings.tracking("offline"), offline_first=16)
     alone = dataclasses.replace(settings, offline_first=0)
+    progs = (_shapefit._observe_frames, _shapefit.refine_shape_core)
+    assert modes["offline"] is not None  # the default's refinement programs are built
+    before = [p._cache_size() for p in progs]
     calls = []
     tr = pt.Tracker(clip.intrinsics, refine=settings)
     res = tr.run(
@@ -554,6 +559,8 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     first = tr.refine_report["offline_first"]
     assert first["frames_used"].max() < 16 and tr.refine_report["frames_used"].max() >= 16
     assert tr.prepass_s > 0
+    # Both refinements ran the default's programs: the pre-pass compiles none of its own.
+    assert [p._cache_size() for p in progs] == before
     pre = pt.Tracker(clip.intrinsics, refine=alone).run(
         clip.depth[:16], clip.keypoints2d[:16], clip.confidence[:16]
     )  # fmt: skip

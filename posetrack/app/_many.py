@@ -39,6 +39,8 @@ def _settings(args, config, mode: str, both_ways: bool = False) -> dict[str, Any
     (``both_ways`` only where on: one-way results of older versions still match; its value
     names the fusion, so results of the first one, recorded as ``true``, are tracked again)."""
     out = {"method": config.method, "hypotheses": config.n, "mode": mode, "seed": args.seed}
+    if args.shape_prepass:  # only where on, as both_ways: older results still match
+        out["shape_prepass"] = args.shape_prepass
     return {**out, "both_ways": "smoothed tracks fused"} if both_ways else out
 
 
@@ -135,6 +137,7 @@ def track_many_command(args) -> int:
     config = _tracker_config(args)
     mode = _mode(args)
     motion = _motion(args)
+    refine = _refine(args)  # flags that do not go together: before any file is read
     if args.batch < 1:
         raise ValueError(f"--batch must be >= 1, got {args.batch}")
     manifest = Path(args.manifest)
@@ -229,7 +232,6 @@ def track_many_command(args) -> int:
     bar = None if args.quiet else ProgressBar("tracking")
     # Rows of one depth size share a batch: group them (stable within a size).
     order = sorted(range(len(todo)), key=lambda k: (todo[k].intrinsics.shape, k))
-    refine = _refine(args)
     track_many(
         [loader(k) for k in order], config, batch=args.batch, seed=args.seed, mode=mode,
         progress=bar, errors="return",
