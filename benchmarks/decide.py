@@ -51,7 +51,9 @@ the first N frames tracked alone first, their refined shape (``radius_prior_sigm
 radii's prior off) the start of the whole recording's tracking, refined the same way:
 ``ShapeFitSettings.offline_first``; the time is both; ``prepassNr``: the same with only the
 part radii refined, the lengths as measured; ``prepassNg``: the same with the mode's own
-refinement settings, offline the girth prior); every other setting is the mode's default.
+refinement settings, offline the girth prior), ``gateX`` (offline: ``prepass40g`` only where
+the first 40 frames' observed keypoint share is below X: ``offline_first_below``; the default
+elsewhere); every other setting is the mode's default.
 ~25-40 s per run on 2 CPU cores.
 """
 
@@ -206,6 +208,15 @@ def settings(variant: str, mode: str = "offline") -> dict:
         )  # fmt: skip
         # The tracker's own pre-pass (the same as two trackers by hand: tests/test_smooth.py).
         return {"refine": dataclasses.replace(refine, offline_first=int(frames))}
+    if variant.startswith("gate"):  # prepass40g where the first 40 frames are poorly observed
+        if mode != "offline":
+            raise SystemExit(f"error: --variants: {variant!r}: the shape pre-pass is offline's")
+        try:
+            return {"refine": dataclasses.replace(
+                tracking, offline_first=40, offline_first_below=float(variant[4:])
+            )}  # fmt: skip
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
     if variant == "alllm-norefit":
@@ -230,7 +241,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r|g]' (N >= 10), "
-        "'sides:G+G...'"
+        "'gateX', 'sides:G+G...'"
     )
 
 

@@ -67,6 +67,7 @@ from ._observe import Landmarks as Landmarks
 from ._observe import body_depth_limit as body_depth_limit
 from ._observe import confident_depth as confident_depth
 from ._observe import lift_keypoints as lift_keypoints
+from ._observe import observed_share as observed_share
 from ._programs import enable_cache as enable_cache
 from ._refine import refine_pose as refine_pose
 from ._render import Capsules as Capsules
@@ -123,7 +124,7 @@ __all__ = [
     "capsules", "facing_camera_params", "keypoints", "make_params", "project",
     # observations
     "Landmarks", "body_depth_limit", "confident_depth", "downsample_depth", "fit_floor_plane",
-    "lift_keypoints", "observation_maps",
+    "lift_keypoints", "observation_maps", "observed_share",
     # fitting (Eq. (1))
     "FitResult", "FitSettings", "ResidualSettings", "estimate_shape", "fit_hypotheses",
     "fit_pose", "initial_pose", "refine_pose",

@@ -199,3 +199,39 @@ def body_depth_limit(
     median = jnp.nanmedian(jnp.where(ok, z, jnp.nan))
     use = (jnp.asarray(band) > 0) & jnp.any(ok)
     return jnp.where(use, jnp.minimum(jnp.where(use, median, 0.0) + band, max_depth), max_depth)
+
+
+#: The confidence above which :func:`observed_share` counts a keypoint detected.
+OBSERVED_CONFIDENCE = 0.3
+
+
+def observed_share(depths, keypoints2d, confidence, frames: int) -> float:
+    """The share of the first ``frames`` frames' keypoints that the camera observed: detected
+    (confidence above :data:`OBSERVED_CONFIDENCE`, finite) on a pixel whose depth is > 0 (the
+    keypoint rounded to a pixel, clipped into the image). NumPy, on the host; the gate of the
+    offline shape pre-pass (``ShapeFitSettings.offline_first_below``): clean clips read
+    0.6-0.9, occluded ones 0.3-0.7 (benchmarks/README.md, "A pre-pass for occluded starts").
+
+    Args:
+        depths: a sequence of (H, W) depth maps (any unit; 0 or NaN: no depth).
+        keypoints2d: a sequence of (kpt, 2) pixel coordinates (u, v).
+        confidence: a sequence of (kpt,) detector confidences.
+        frames: how many of the first frames to read (at least 1; at most the recording's).
+    """
+    n = min(int(frames), len(depths))
+    if n < 1:
+        raise ValueError(f"observed_share: frames must be >= 1 of a non-empty recording, got {n}")
+    seen = total = 0
+    for t in range(n):
+        dep = np.asarray(depths[t])
+        kp = np.asarray(keypoints2d[t], dtype=np.float64)
+        conf = np.asarray(confidence[t], dtype=np.float64)
+        H, W = dep.shape
+        ok = (conf > OBSERVED_CONFIDENCE) & np.isfinite(kp).all(axis=-1)
+        kp = np.where(ok[:, None], kp, 0.0)
+        x = np.clip(np.round(kp[:, 0]).astype(np.int64), 0, W - 1)
+        y = np.clip(np.round(kp[:, 1]).astype(np.int64), 0, H - 1)
+        with np.errstate(invalid="ignore"):
+            seen += int((ok & (dep[y, x] > 0)).sum())
+        total += len(conf)
+    return seen / total

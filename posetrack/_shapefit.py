@@ -128,6 +128,12 @@ class ShapeFitSettings:
     of them); the whole recording is then tracked from that shape, and refined again after
     (0: not). A recording of no more frames than this has no pre-pass (the refinement after
     the forward pass sees the same frames)."""
+    offline_first_below: float | None = None
+    """With ``offline_first``: make the pre-pass only where the share of its frames' keypoints
+    observed on depth (:func:`~posetrack.observed_share`) is below this (None: always). The
+    pre-pass gained under occlusion and cost some clean recordings up to 3.5 mm; 0.6 separated
+    the tuning clips' clean starts from their occluded ones (benchmarks/README.md, "A
+    pre-pass for occluded starts")."""
 
     @classmethod
     def tracking(cls, mode: str = "offline") -> ShapeFitSettings:
@@ -178,6 +184,11 @@ class ShapeFitSettings:
             raise ValueError(
                 f"ShapeFitSettings.offline_first must be 0 or >= frames ({self.frames}), got "
                 f"{self.offline_first}"
+            )
+        gate = self.offline_first_below
+        if gate is not None and not (math.isfinite(gate) and 0 < gate <= 1):
+            raise ValueError(
+                f"ShapeFitSettings.offline_first_below must be None or in (0, 1], got {gate!r}"
             )
         if self.steps < 1:
             raise ValueError(f"ShapeFitSettings.steps must be >= 1, got {self.steps}")

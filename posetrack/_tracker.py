@@ -40,7 +40,7 @@ from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
-from ._observe import Landmarks
+from ._observe import Landmarks, observed_share
 from ._programs import (
     Program, device_f32, device_key, prepare_in_background, prepare_now, program,
 )
@@ -488,7 +488,8 @@ class Tracker:
     shrink together (one girth for the body), and the motion model then fits every frame with
     the refined shape (the per-frame poses' keypoints as its anchor); with
     ``ShapeFitSettings.offline_first`` (opt-in) the first frames are tracked alone first and
-    the whole recording starts from their refined shape (:meth:`progress_frames`). Online
+    the whole recording starts from their refined shape (:meth:`progress_frames`; with
+    ``offline_first_below`` only where those frames are poorly observed). Online
     it runs causally, when ``ShapeFitSettings.online_first`` (20) and again when
     ``online_after`` (60) frames have been tracked, each time on frames among those (the
     second from the landmark-based shape again), and the frames after are tracked with the
@@ -684,6 +685,11 @@ class Tracker:
         self.prepass_s = self._prepass_refine_s = 0.0
         """Seconds of the last offline :meth:`run`'s shape pre-pass (``refine.offline_first``;
         0 without one): its tracking and refinement, part of :attr:`refine_s` too."""
+        self.prepass_share: float | None = None
+        """The last offline :meth:`run`'s gate of the shape pre-pass
+        (``refine.offline_first_below``): the share of its frames' keypoints observed on depth
+        (:func:`~posetrack.observed_share`); the pre-pass ran where it was below the gate.
+        None without a gate."""
         self._prepare_started = False
         # Inside track_many: whether run() gives the batch slot up after its steps (a shape
         # pre-pass's tracker does not: its recording is tracked again in the same slot).
@@ -1426,7 +1432,13 @@ class Tracker:
             total = pre + T * self.passes(T)
             progress_pre, progress = _share(progress, 0, total), _share(progress, pre, total)
         pre_report = None  # the pre-pass's refinement (refine_report["offline_first"])
-        self.prepass_s = 0.0
+        self.prepass_s, self.prepass_share = 0.0, None
+        if pre and self.refine.offline_first_below is not None:
+            self.prepass_share = observed_share(depths, keypoints2d, confidence, pre)
+            if self.prepass_share >= self.refine.offline_first_below:  # a clean start: none
+                if progress_pre is not None:
+                    progress_pre(pre, pre, "no shape pre-pass")
+                pre = 0
         if pre:
             pre_report = self._shape_prepass(depths, keypoints2d, confidence, pre, progress_pre)
         if self.shape is None:

@@ -264,3 +264,29 @@ def test_depth_confidence_is_validated():
     for bad in (-0.1, 1.5, float("nan")):
         with pytest.raises(ValueError, match="TrackerConfig.depth_confidence"):
             pt.TrackerConfig(depth_confidence=bad)
+
+
+def test_observed_share_counts_confident_keypoints_on_depth():
+    """The shape pre-pass's gate: a keypoint counts where its confidence is above 0.3, its
+    coordinates finite, and the depth at its pixel (rounded, clipped into the image) > 0."""
+    depth = np.zeros((4, 6), np.float32)
+    depth[1, 2] = depth[3, 5] = 1.5
+    depth[0, 0] = np.nan
+    kp = np.array([
+        [2.2, 0.8],  # on depth: counts
+        [1.6, 0.6],  # (2, 1) rounded: counts
+        [2.0, 1.0],  # on depth, confidence 0.3: not above it
+        [9.0, 7.0],  # outside, clipped to (5, 3): depth there counts
+        [np.nan, 1.0],  # not finite
+        [0.0, 0.0],  # NaN depth
+        [4.0, 2.0],  # no depth
+        [2.0, 1.0],
+    ])  # fmt: skip
+    conf = np.array([0.9, 0.31, 0.3, 0.8, 0.9, 0.9, 0.9, 0.9])
+    assert pt.observed_share([depth], [kp], [conf], 1) == 4 / 8
+    # Frames beyond the first ``frames`` are not read; a frame with nothing counts zero.
+    none = np.zeros_like(conf)
+    assert pt.observed_share([depth, depth], [kp, kp], [conf, none], 2) == 4 / 16
+    assert pt.observed_share([depth, depth], [kp, kp], [conf, none], 1) == 4 / 8
+    with pytest.raises(ValueError, match="frames must be >= 1"):
+        pt.observed_share([depth], [kp], [conf], 0)

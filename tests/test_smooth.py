@@ -578,6 +578,30 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
         pt.ShapeFitSettings(frames=8, offline_first=4)
 
 
+def test_the_pre_pass_gate_keeps_clean_starts_as_the_default(clip, modes):
+    """``offline_first_below``: where the first frames' observed keypoint share is not below
+    the gate there is no pre-pass: the default's track exactly, its progress bar jumping over
+    the pre-pass's frames; the share is reported."""
+    share = pt.observed_share(clip.depth, clip.keypoints2d, clip.confidence, 16)
+    assert 0.5 < share < 1  # a clean clip: most keypoints observed
+    gated = dataclasses.replace(
+        pt.ShapeFitSettings.tracking("offline"), offline_first=16, offline_first_below=share
+    )  # fmt: skip
+    calls = []
+    tr = pt.Tracker(clip.intrinsics, refine=gated)
+    res = tr.run(
+        clip.depth, clip.keypoints2d, clip.confidence,
+        progress=lambda done, total, postfix="": calls.append((done, total)),
+    )  # fmt: skip
+    assert tr.prepass_share == share and tr.prepass_s == 0
+    assert "offline_first" not in tr.refine_report
+    assert [d for d, _ in calls] == list(range(16, 57)) and {t for _, t in calls} == {56}
+    np.testing.assert_array_equal(res.keypoints3d, modes["offline"].keypoints3d)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="offline_first_below"):
+            dataclasses.replace(gated, offline_first_below=bad)
+
+
 def first_dropped_detection(clip) -> int:
     """The first frame where the offline default's duplicate filter withholds a detection
     (replayed on the host on the detections the tracker follows; ``len(clip.depth)`` if
