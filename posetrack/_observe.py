@@ -208,14 +208,15 @@ OBSERVED_CONFIDENCE = 0.3
 def observed_share(depths, keypoints2d, confidence, frames: int) -> float:
     """The share of the first ``frames`` frames' keypoints that the camera observed: detected
     (confidence above :data:`OBSERVED_CONFIDENCE`, finite) on a pixel whose depth is > 0 (the
-    keypoint rounded to a pixel, clipped into the image). NumPy, on the host; the gate of the
+    keypoint rounded to a pixel, clipped into the image); with several people's detections
+    (``(people, kpt, 2)`` a frame) the best-observed person's. NumPy, on the host; the gate of the
     offline shape pre-pass (``ShapeFitSettings.offline_first_below``): clean clips read
     0.6-0.9, occluded ones 0.3-0.7 (benchmarks/README.md, "A pre-pass for occluded starts").
 
     Args:
         depths: a sequence of (H, W) depth maps (any unit; 0 or NaN: no depth).
-        keypoints2d: a sequence of (kpt, 2) pixel coordinates (u, v).
-        confidence: a sequence of (kpt,) detector confidences.
+        keypoints2d: a sequence of (kpt, 2) or (people, kpt, 2) pixel coordinates (u, v).
+        confidence: a sequence of (kpt,) or (people, kpt) detector confidences.
         frames: how many of the first frames to read (at least 1; at most the recording's).
     """
     n = min(int(frames), len(depths))
@@ -227,11 +228,13 @@ def observed_share(depths, keypoints2d, confidence, frames: int) -> float:
         kp = np.asarray(keypoints2d[t], dtype=np.float64)
         conf = np.asarray(confidence[t], dtype=np.float64)
         H, W = dep.shape
+        kp, conf = kp.reshape(-1, *kp.shape[-2:]), conf.reshape(-1, conf.shape[-1])
         ok = (conf > OBSERVED_CONFIDENCE) & np.isfinite(kp).all(axis=-1)
-        kp = np.where(ok[:, None], kp, 0.0)
-        x = np.clip(np.round(kp[:, 0]).astype(np.int64), 0, W - 1)
-        y = np.clip(np.round(kp[:, 1]).astype(np.int64), 0, H - 1)
+        kp = np.where(ok[..., None], kp, 0.0)
+        x = np.clip(np.round(kp[..., 0]).astype(np.int64), 0, W - 1)
+        y = np.clip(np.round(kp[..., 1]).astype(np.int64), 0, H - 1)
         with np.errstate(invalid="ignore"):
-            seen += int((ok & (dep[y, x] > 0)).sum())
-        total += len(conf)
+            per_person = (ok & (dep[y, x] > 0)).sum(axis=-1)
+        seen += int(per_person.max(initial=0))
+        total += conf.shape[-1]
     return seen / total

@@ -732,6 +732,14 @@ def test_shape_prepass_flag_sets_the_offline_pre_pass_and_refuses_other_modes(co
             refine("--shape-prepass", "40", flag)
     with pytest.raises(ValueError, match="--shape-prepass 4: .*offline_first must be 0 or >= "):
         refine("--shape-prepass", "4")
+    # --shape-prepass-below X: the pre-pass's gate; it needs the pre-pass and a share in (0, 1].
+    assert refine("--shape-prepass", "40", "--shape-prepass-below", "0.6") == dataclasses.replace(
+        shipped, offline_first=40, offline_first_below=0.6
+    )  # fmt: skip
+    with pytest.raises(ValueError, match="--shape-prepass-below 0.6 gates .*needs --shape-prep"):
+        refine("--shape-prepass-below", "0.6")
+    with pytest.raises(ValueError, match="--shape-prepass 40 --shape-prepass-below 1.5: .*below"):
+        refine("--shape-prepass", "40", "--shape-prepass-below", "1.5")
 
 
 @pytest.mark.parametrize("command", ["track", "track-many"])

@@ -335,11 +335,15 @@ def test_resume_settings_name_the_both_ways_fusion():
 
     from posetrack.app._many import _settings
 
-    args, config = SimpleNamespace(seed=3, shape_prepass=0), pt.TrackerConfig()
+    args = SimpleNamespace(seed=3, shape_prepass=0, shape_prepass_below=None)
+    config = pt.TrackerConfig()
     one = _settings(args, config, "offline")
     both = _settings(args, config, "offline", both_ways=True)
     assert "both_ways" not in one and {k: v for k, v in both.items() if k != "both_ways"} == one
     assert both["both_ways"] not in (True, False, None)
     # --shape-prepass N: named where on (results tracked without it still match without it).
-    pre = _settings(SimpleNamespace(seed=3, shape_prepass=40), config, "offline")
+    pre = _settings(SimpleNamespace(seed=3, shape_prepass=40, shape_prepass_below=None), config,
+                    "offline")  # fmt: skip
     assert "shape_prepass" not in one and pre == {**one, "shape_prepass": 40}
+    gated = SimpleNamespace(seed=3, shape_prepass=40, shape_prepass_below=0.6)
+    assert _settings(gated, config, "offline") == {**pre, "shape_prepass_below": 0.6}

@@ -290,3 +290,7 @@ def test_observed_share_counts_confident_keypoints_on_depth():
     assert pt.observed_share([depth, depth], [kp, kp], [conf, none], 1) == 4 / 8
     with pytest.raises(ValueError, match="frames must be >= 1"):
         pt.observed_share([depth], [kp], [conf], 0)
+    # Several people's detections a frame: the best-observed person's.
+    people_kp, people_conf = np.stack([kp, kp]), np.stack([none, conf])
+    assert pt.observed_share([depth], [people_kp], [people_conf], 1) == 4 / 8
+    assert pt.observed_share([depth], [people_kp[:0]], [people_conf[:0]], 1) == 0

@@ -120,14 +120,18 @@ def _motion(args):
 
 
 def _refine(args):
-    """The tracker's ``refine`` for ``--no-refine-shape`` and ``--shape-prepass N``
-    (``track``, ``track-many``, ``warmup``): None, ``"auto"`` or the offline
-    ``ShapeFitSettings`` with ``offline_first=N``."""
+    """The tracker's ``refine`` for ``--no-refine-shape``, ``--shape-prepass N`` and
+    ``--shape-prepass-below X`` (``track``, ``track-many``, ``warmup``): None, ``"auto"`` or
+    the offline ``ShapeFitSettings`` with ``offline_first=N`` (``offline_first_below=X``)."""
     import dataclasses
 
     from .._shapefit import ShapeFitSettings
 
-    n = args.shape_prepass
+    n, below = args.shape_prepass, args.shape_prepass_below
+    if below is not None and not n:
+        raise ValueError(
+            f"--shape-prepass-below {below} gates the shape pre-pass: it needs --shape-prepass N"
+        )
     if not n:
         return None if args.no_refine_shape else "auto"
     if args.no_refine_shape:
@@ -139,10 +143,13 @@ def _refine(args):
             f"--shape-prepass {n} is the offline mode's: it does not go with --online or "
             "--per-frame"
         )
+    flags = f"--shape-prepass {n}" + ("" if below is None else f" --shape-prepass-below {below}")
     try:
-        return dataclasses.replace(ShapeFitSettings.tracking("offline"), offline_first=n)
+        return dataclasses.replace(
+            ShapeFitSettings.tracking("offline"), offline_first=n, offline_first_below=below
+        )  # fmt: skip
     except ValueError as e:
-        raise ValueError(f"--shape-prepass {n}: {e}") from None
+        raise ValueError(f"{flags}: {e}") from None
 
 
 def _track(args) -> int:
@@ -284,6 +291,7 @@ def _track(args) -> int:
             "drop_duplicates": tracker.duplicates is not None,
             "refine_shape": not args.no_refine_shape,
             "shape_prepass": tracker.prepass_frames(len(rec.depth)),
+            "shape_prepass_below": args.shape_prepass_below,
         },
         "notes": notes,
         # Seconds of each frame (TUM: the colour image's time stamp); null without them.
@@ -340,6 +348,12 @@ def _track(args) -> int:
                f"{len(first['frames_used'])} of the first {tracker.prepass_frames(n)} frames, "
                f"{tracker.prepass_s:.1f} s with its tracking)")
         )  # fmt: skip
+    if tracker.prepass_share is not None and (rep or {}).get("offline_first") is None:
+        print(
+            f"no shape pre-pass: {tracker.prepass_share:.2f} of the first "
+            f"{tracker.prepass_frames(n)} frames' keypoints observed on depth (the gate, "
+            f"--shape-prepass-below, is {args.shape_prepass_below})"
+        )
     if undone and any(undone.values()):
         listed = ", ".join(f"{g} {n}" for g, n in undone.items() if n)
         print(f"left/right swaps of the detector undone (frames): {listed}")
@@ -487,6 +501,10 @@ def _shape_summary(tracker) -> dict:
         "refined_on_frames": None if rep is None else [int(t) for t in rep["frames_used"]],
         "refine_s": None if rep is None else round(tracker.refine_s, 2),
     }
+    # --shape-prepass-below: the share of the pre-pass's frames' keypoints observed on depth
+    # (the pre-pass ran where it was below the gate); null without the gate.
+    share = tracker.prepass_share
+    out["prepass_observed_share"] = None if share is None else round(share, 4)
     first = None if rep is None else rep.get("offline_first")
     if first is not None:  # --shape-prepass: its refinement, the start of the one above
         out["prepass"] = {
@@ -539,6 +557,13 @@ def _add_mode_options(p: argparse.ArgumentParser) -> None:
         help="offline: track the first N frames alone first, refine the body shape on them "
         "and track the whole recording from that shape (N >= 8; off by default; 40 helped "
         "occluded recordings by 1-6 mm and cost clean ones up to 3.5: see the README)",
+    )  # fmt: skip
+    p.add_argument(
+        "--shape-prepass-below", type=float, default=None, metavar="X",
+        help="with --shape-prepass N: make the pre-pass only where the share of the first N "
+        "frames' keypoints observed on depth is below X (0.6 separated clean starts from "
+        "occluded ones; it kept the clean recordings' losses away, not the pre-pass's own: "
+        "see the README)",
     )  # fmt: skip
 
 

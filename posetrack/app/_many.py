@@ -41,6 +41,8 @@ def _settings(args, config, mode: str, both_ways: bool = False) -> dict[str, Any
     out = {"method": config.method, "hypotheses": config.n, "mode": mode, "seed": args.seed}
     if args.shape_prepass:  # only where on, as both_ways: older results still match
         out["shape_prepass"] = args.shape_prepass
+        if args.shape_prepass_below is not None:
+            out["shape_prepass_below"] = args.shape_prepass_below
     return {**out, "both_ways": "smoothed tracks fused"} if both_ways else out
 
 
