@@ -255,7 +255,8 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     """Track each ``((group, seed, motion, variety), occlusion, tracker seed)`` of ``todo``
     with every variant (name -> ``Tracker`` keywords) and append one JSON line per item to
     ``out`` (also printed): D, coverage, swapped-limb frames, acceleration error, detections
-    dropped, seconds, the step's median ms a frame and, online, the motion model's."""
+    dropped, seconds, the step's median ms a frame, the mean Delta of the tracked frames and,
+    online, the motion model's median ms a frame."""
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
             seq = pt.synth.generate(
@@ -276,6 +277,9 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
                     **decision_measures(res.keypoints3d, seq.joints3d),
                     "dropped": tr.duplicates_dropped, "s": time.perf_counter() - t0,
                     "step_ms": res.ms_per_frame,
+                    # Mean Delta of the per-frame poses (offline: the forward pass's) over the
+                    # tracked frames: what the tracker itself can see of a track's quality.
+                    "delta": float(np.nanmean(np.where(res.status == 0, res.delta, np.nan))),
                 }  # fmt: skip
                 if mode == "online":  # the online motion model's median time per frame
                     rec[name]["motion_ms"] = float(np.median(tr.motion_times) * 1000)
