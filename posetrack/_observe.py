@@ -210,8 +210,9 @@ def observed_share(depths, keypoints2d, confidence, frames: int) -> float:
     (confidence above :data:`OBSERVED_CONFIDENCE`, finite) on a pixel whose depth is > 0 (the
     keypoint rounded to a pixel, clipped into the image); with several people's detections
     (``(people, kpt, 2)`` a frame) the best-observed person's. NumPy, on the host; the gate of the
-    offline shape pre-pass (``ShapeFitSettings.offline_first_below``): clean clips read
-    0.6-0.9, occluded ones 0.3-0.7 (benchmarks/README.md, "A pre-pass for occluded starts").
+    offline shape pre-pass (``ShapeFitSettings.offline_first_below``): over 40 frames the
+    tuning and report clips read 0.55-0.89 clean, 0.26-0.71 occluded (benchmarks/README.md,
+    "A pre-pass for occluded starts").
 
     Args:
         depths: a sequence of (H, W) depth maps (any unit; 0 or NaN: no depth).
