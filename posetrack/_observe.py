@@ -234,8 +234,7 @@ def observed_share(depths, keypoints2d, confidence, frames: int) -> float:
         kp = np.where(ok[..., None], kp, 0.0)
         x = np.clip(np.round(kp[..., 0]).astype(np.int64), 0, W - 1)
         y = np.clip(np.round(kp[..., 1]).astype(np.int64), 0, H - 1)
-        with np.errstate(invalid="ignore"):
-            per_person = (ok & (dep[y, x] > 0)).sum(axis=-1)
+        per_person = (ok & (dep[y, x] > 0)).sum(axis=-1)  # NaN > 0 is False: no depth
         seen += int(per_person.max(initial=0))
         total += conf.shape[-1]
     return seen / total

@@ -536,6 +536,16 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
         pt.ShapeFitSettings(frames=8, online_first=60, online_after=60)
 
 
+def run_with_progress(tracker, clip):
+    """``tracker.run`` over ``clip``: its result and the progress calls, (done, total) each."""
+    calls = []
+    res = tracker.run(
+        clip.depth, clip.keypoints2d, clip.confidence,
+        progress=lambda done, total, postfix="": calls.append((done, total)),
+    )  # fmt: skip
+    return res, calls
+
+
 def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     """``offline_first``: the first 16 frames are tracked by a tracker as this one was made
     (its seed, no pre-pass) and the shape refined on them; the whole recording is then
@@ -548,12 +558,8 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     progs = (_shapefit._observe_frames, _shapefit.refine_shape_core)
     assert modes["offline"] is not None  # the default's refinement programs are built
     before = [p._cache_size() for p in progs]
-    calls = []
     tr = pt.Tracker(clip.intrinsics, refine=settings)
-    res = tr.run(
-        clip.depth, clip.keypoints2d, clip.confidence,
-        progress=lambda done, total, postfix="": calls.append((done, total)),
-    )  # fmt: skip
+    res, calls = run_with_progress(tr, clip)
     assert (tr.prepass_frames(40), tr.prepass_frames(16), tr.progress_frames(40)) == (16, 0, 56)
     assert [d for d, _ in calls] == list(range(1, 57)) and {t for _, t in calls} == {56}
     first = tr.refine_report["offline_first"]
@@ -587,12 +593,8 @@ def test_the_pre_pass_gate_keeps_clean_starts_as_the_default(clip, modes):
     gated = dataclasses.replace(
         pt.ShapeFitSettings.tracking("offline"), offline_first=16, offline_first_below=share
     )  # fmt: skip
-    calls = []
     tr = pt.Tracker(clip.intrinsics, refine=gated)
-    res = tr.run(
-        clip.depth, clip.keypoints2d, clip.confidence,
-        progress=lambda done, total, postfix="": calls.append((done, total)),
-    )  # fmt: skip
+    res, calls = run_with_progress(tr, clip)
     assert tr.prepass_share == share and tr.prepass_s == 0
     assert "offline_first" not in tr.refine_report
     assert [d for d, _ in calls] == list(range(16, 57)) and {t for _, t in calls} == {56}

@@ -348,7 +348,7 @@ def _track(args) -> int:
                f"{len(first['frames_used'])} of the first {tracker.prepass_frames(n)} frames, "
                f"{tracker.prepass_s:.1f} s with its tracking)")
         )  # fmt: skip
-    if tracker.prepass_share is not None and (rep or {}).get("offline_first") is None:
+    if tracker.prepass_share is not None and not tracker.prepass_s:  # the gate kept it off
         print(
             f"no shape pre-pass: {tracker.prepass_share:.2f} of the first "
             f"{tracker.prepass_frames(n)} frames' keypoints observed on depth (the gate, "
