@@ -140,7 +140,7 @@ def splice_summary(pairs: list[tuple[dict, dict]], window: int) -> dict:
     return {
         "window": window,
         "pick_vs_random": float(gain.mean()),
-        "pick_vs_random_se": float(gain.std(ddof=1) / math.sqrt(len(gain))),
+        "pick_vs_random_se": _se(gain),
         "oracle_vs_random": float((np.array(oracle) - np.array(rand)).mean()),
     }
 
@@ -186,6 +186,11 @@ def _pairs(rows: list[dict]) -> list[tuple[dict, dict]]:
     return out
 
 
+def _se(x: np.ndarray) -> float:
+    """Standard error of the mean (NaN for fewer than two values)."""
+    return float(x.std(ddof=1) / math.sqrt(len(x))) if len(x) > 1 else float("nan")
+
+
 def judge_summary(pairs: list[tuple[dict, dict]], judge: str) -> dict:
     """How well ``judge`` (lower = better) picks the lower-D track of each pair."""
     dD = np.array([b["D"] - a["D"] for a, b in pairs])
@@ -203,7 +208,7 @@ def judge_summary(pairs: list[tuple[dict, dict]], judge: str) -> dict:
         "big": int(big.sum()),
         "pairs": len(pairs),
         "pick_vs_random": float(gain.mean()),
-        "pick_vs_random_se": float(gain.std(ddof=1) / math.sqrt(len(gain))),
+        "pick_vs_random_se": _se(gain),
         "oracle_vs_random": float((oracle - rand).mean()),
     }
 
