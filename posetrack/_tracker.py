@@ -622,8 +622,8 @@ class Tracker:
             )
         self.refine: ShapeFitSettings | None = refine
         self.refine_report: dict | None = None
-        """After :meth:`run` with ``refine``: :func:`refine_shape`'s report (``None`` when it
-        did not run)."""
+        """After :meth:`run` with ``refine``: :func:`refine_shape`'s report of that run
+        (``None`` when it did not run in the last :meth:`run`)."""
         if not isinstance(intrinsics, Intrinsics):
             raise TypeError(
                 f"Tracker: intrinsics must be posetrack.Intrinsics, got {type(intrinsics)}"
@@ -1426,6 +1426,8 @@ class Tracker:
         if T == 0:
             raise ValueError("run: the sequence has no frames")
         self._start_preparing(update=self.mode == "online")
+        # This run's refinement only: a run that cannot refine reports none, not an earlier one's.
+        self.refine_report, self.refine_s = None, 0.0
         pre = self.prepass_frames(T)
         progress_pre = None
         if progress is not None:  # one bar: the pre-pass's frames, then each pass's

@@ -500,6 +500,16 @@ def test_online_refines_the_body_shape_causally(clip, modes, online_lag0_kp_shap
         assert abs(res.shape.to_dict()[k] - off[k]) < 0.15 * off[k], k
 
 
+def test_a_run_reports_its_own_shape_refinement_only(clip):
+    """A run that cannot refine (2 frames: fewer than the refinement needs) reports no
+    refinement, not one a previous run of the same tracker left behind."""
+    tr = pt.Tracker(clip.intrinsics)
+    tr.refine_report, tr.refine_s = {"frames_used": np.arange(8)}, 5.0  # an earlier run's
+    res = tr.run(clip.depth[:2], clip.keypoints2d[:2], clip.confidence[:2])
+    assert (res.status == 0).all()
+    assert tr.refine_report is None and tr.refine_s == 0.0
+
+
 def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_kp_shape):
     """``online_first``: a first refinement after 8 tracked frames (on those), the frames
     after it tracked with that shape, and the one after 16 frames starting again from the
