@@ -37,6 +37,7 @@ import json
 import math
 import platform
 import time
+import warnings
 from collections import defaultdict
 
 import jax
@@ -122,6 +123,12 @@ def splice_summary(pairs: list[tuple[dict, dict]], window: int) -> dict:
     """Per window of ``window`` frames, keep the seed whose track accelerates less there
     (``acc_t``); the spliced track's frame-mean error against a random seed's and the
     window-wise oracle's (seams ignored: an upper bound of what a local restart could buy)."""
+    with warnings.catch_warnings():  # a window of lost frames is all NaN: the first seed kept
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return _splice(pairs, window)
+
+
+def _splice(pairs: list[tuple[dict, dict]], window: int) -> dict:
     pick, rand, oracle = [], [], []
     for a, b in pairs:
         ea, eb = np.array(a["err_t"]), np.array(b["err_t"])
