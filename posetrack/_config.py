@@ -51,6 +51,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "occlusion_gate": False,
     "depth_confidence": 0.0,
     "depth_confidence_far": 0.0,
+    "far_side_2d": False,
     "reinit_keep_facing": 0,
     "lift_band": 0.0,
 }
@@ -149,6 +150,14 @@ class TrackerConfig(eqx.Module):
     arm"): opt-in. On 24 fresh tuning runs, each with tracker seeds 0-2 (2026-12-01), it
     changed D by -0.09 mm offline and +0.10 online ("Decisions on several tracker seeds").
     Not in the paper. Traced."""
+    far_side_2d: bool = eqx.field(default=False, static=True)
+    """Off by default. In a side view (the previous output turned more than 30 degrees from
+    the camera, :func:`posetrack._visibility.far_side`) the far side's shoulder and hip as well
+    as its elbow, wrist, knee and ankle are fitted by their 2D detections only, whatever the
+    detector's confidence: their pixels show the near side's surface (the far hip is lifted
+    20-30 cm too close), and the 3D residuals pull the whole body toward the camera. Unlike
+    ``depth_confidence_far`` it includes the torso and needs no confidence gap (a synthetic or
+    real detector may report a hidden joint as confidently as a seen one). Not in the paper."""
     surface_offset: bool = eqx.field(default=True, static=True)
     """Push lifted landmarks back by the local body radius (surface -> joint centre). Not in
     the paper; see README "Beyond the paper"."""

@@ -165,7 +165,13 @@ def confident_depth(landmarks: Landmarks, ratio: Float[Array, "*kpt"] | float) -
     body = np.asarray(BODY_JOINTS)
     median = jnp.nanmedian(jnp.where(landmarks.detected[body], c[body], jnp.nan))
     median = jnp.where(jnp.isnan(median), 0.0, median)
-    has_depth = landmarks.has_depth & (c >= ratio * median)
+    return without_depth(landmarks, ~(c >= ratio * median))
+
+
+def without_depth(landmarks: Landmarks, drop: Bool[Array, " kpt"]) -> Landmarks:
+    """``landmarks`` with F_i cleared (and O_i zeroed) where ``drop``: those keypoints are
+    fitted by their 2D detections only (f_i stays). Jittable."""
+    has_depth = landmarks.has_depth & ~drop
     return Landmarks(
         keypoints2d=landmarks.keypoints2d,
         confidence=landmarks.confidence,

@@ -26,7 +26,7 @@ from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
 from ._limbs import limb_hypotheses
-from ._observe import Landmarks, confident_depth
+from ._observe import Landmarks, confident_depth, without_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
@@ -234,6 +234,9 @@ def tracker_step(
     far = far_side(state.best)
     ratio = jnp.maximum(config.depth_confidence, config.depth_confidence_far * far)
     lm = confident_depth(lm, ratio)
+    if config.far_side_2d:  # (off by default) the far side's limbs and torso, whatever the
+        # detector's confidence: their pixels show the near side's surface in a side view
+        lm = without_depth(lm, far_side(state.best, torso=True))
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
         # Every other hypothesis leaves out the 3D landmarks that the previous output says

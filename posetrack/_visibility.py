@@ -101,9 +101,14 @@ def self_occluded(
 SIDE_VIEW_SIN = 0.5
 
 
-def far_side(params: Float[Array, 43]) -> Bool[Array, " kpt"]:
+#: Shoulders and hips, (right, left) COCO-18 indices: the torso's far-side keypoints
+#: (:func:`far_side` with ``torso=True``).
+TORSO_PAIRS: tuple[tuple[int, int], ...] = ((2, 5), (8, 11))
+
+
+def far_side(params: Float[Array, 43], torso: bool = False) -> Bool[Array, " kpt"]:
     """The elbow, wrist, knee and ankle (``LIMB_PAIRS``) of the side a pose turns away from
-    the camera.
+    the camera; with ``torso`` (static) its shoulder and hip too (:data:`TORSO_PAIRS`).
 
     In a side view the far limbs hang behind the torso, and the depth on their keypoints'
     pixels is the near side's surface. The model's torso is rigid, so the shoulders' and
@@ -113,6 +118,7 @@ def far_side(params: Float[Array, 43]) -> Bool[Array, " kpt"]:
     nothing in between (a person facing the camera, or away). Jittable.
     """
     turned = -quat_to_matrix(quat_normalize(params[3:7]))[2, 0]
-    right, left = (jnp.asarray(side) for side in zip(*LIMB_PAIRS, strict=True))
+    pairs = LIMB_PAIRS + (TORSO_PAIRS if torso else ())
+    right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
     flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > SIDE_VIEW_SIN)
     return flags.at[left].set(turned < -SIDE_VIEW_SIN)
