@@ -220,6 +220,29 @@ def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
     assert other[[6, 7, 12, 13]].all() == (far == R_WRIST)
     # Facing the camera no side is turned away.
     assert not np.asarray(far_side(front)).any()
+    # With the torso: the far side's shoulder and hip too, nothing else.
+    torso = np.asarray(far_side(p, torso=True))
+    far_torso = [2, 8] if far == R_WRIST else [5, 11]
+    assert torso[far_limbs + far_torso].all() and torso.sum() == 6
+    assert not np.asarray(far_side(front, torso=True)).any()
+
+
+def test_far_side_2d_fits_the_far_side_in_2d_at_full_confidence(side, step):
+    """``far_side_2d``: every keypoint detected at the same confidence (no gap for
+    ``depth_confidence_far`` to use); the far wrist, shoulder and hip lose their 3D
+    landmarks in every hypothesis and stay detected, the near ones keep theirs; without the
+    switch the far ones keep theirs too."""
+    _, _, _, far, near = side
+    far_torso = [2, 8] if far == R_WRIST else [5, 11]
+    near_torso = [5, 11] if far == R_WRIST else [2, 8]
+    conf = np.full(18, 0.9, np.float32)
+    est = _side_step(side, step, GATED.replace(far_side_2d=True), conf)
+    has, det = np.asarray(est.landmarks.has_depth), np.asarray(est.landmarks.detected)
+    assert not has[[far, *far_torso]].any() and det[[far, *far_torso]].all()
+    assert has[[near, *near_torso]].all()
+    assert not np.asarray(est.used3d)[:, [far, *far_torso]].any()
+    plain = _side_step(side, step, GATED, conf)
+    assert np.asarray(plain.landmarks.has_depth)[[far, *far_torso]].all()
 
 
 def test_the_far_side_gate_spares_the_near_sides_unconfident_keypoint(side, step):
