@@ -261,8 +261,17 @@ def summary(a) -> int:
             "runs": rows,
         }
         with open(a.json, "w") as f:
-            json.dump(doc, f, indent=1)
+            f.write(_dumps(doc))
     return 0
+
+
+def _dumps(doc: dict) -> str:
+    """``doc`` as indented JSON with each run on one line (the per-frame profiles would
+    otherwise take a line per number)."""
+    runs = doc["runs"]
+    head = json.dumps({k: v for k, v in doc.items() if k != "runs"}, indent=1)
+    lines = ",\n".join("  " + json.dumps(r) for r in runs)
+    return head[:-2] + ',\n "runs": [\n' + lines + "\n ]\n}\n"
 
 
 def main() -> int:
