@@ -38,7 +38,8 @@ offline windows blended over their shared frames; the default since 2026-12-02, 
 as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now), ``kept``
 (``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
-(``TrackerConfig(lift_band=M)``, metres), ``confX`` (``TrackerConfig(depth_confidence=X)``),
+(``TrackerConfig(lift_band=M)``, metres), ``agreeX`` (``TrackerConfig(lost_agreement=X)``),
+``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
@@ -144,6 +145,7 @@ _NUMBERED = {
     "conf": ("config", pt.TrackerConfig, "depth_confidence"),
     "far": ("config", pt.TrackerConfig, "depth_confidence_far"),
     "band": ("config", pt.TrackerConfig, "lift_band"),
+    "agree": ("config", pt.TrackerConfig, "lost_agreement"),
 }
 
 
