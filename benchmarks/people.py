@@ -45,7 +45,13 @@ LEVELS = (0, 1, 2)
 
 
 def scene_result(
-    seed: int, motion: str, level: int, frames: int, size: tuple[int, int], ablate: bool = False
+    seed: int,
+    motion: str,
+    level: int,
+    frames: int,
+    size: tuple[int, int],
+    ablate: bool = False,
+    config: pt.TrackerConfig | None = None,
 ) -> dict:
     """Track one scene three ways; identity jumps and D of each."""
     w, h = size
@@ -54,7 +60,7 @@ def scene_result(
     seq = pt.synth.generate(seed, bystander=True, **kw)
     alone = pt.synth.generate(seed, **kw)
     truth = np.concatenate([seq.joints3d[:, None], seq.others_joints3d], axis=1)
-    config = pt.TrackerConfig()
+    config = config or pt.TrackerConfig()
     out: dict = {"seed": seed, "motion": motion, "level": level, "frames": frames}
     runs = {
         "follow": (seq.people2d, seq.people_confidence, pt.FollowSettings(), seq.joints3d),
@@ -133,8 +139,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--start", type=int, default=0, help="skip this many seeds of the range")
     ap.add_argument("--frames", type=int, default=240)
     ap.add_argument("--ablate", action="store_true", help="also: follow without masking others")
+    ap.add_argument(
+        "--lost-agreement", type=float, help="TrackerConfig.lost_agreement (default: shipped)"
+    )
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = ap.parse_args(argv)
+    config = pt.TrackerConfig()
+    if args.lost_agreement is not None:
+        config = pt.TrackerConfig(lost_agreement=args.lost_agreement)
     n = 4 if args.quick else args.scenes
     seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[args.start : args.start + n]
     print(machine_summary(), file=sys.stderr)
@@ -142,7 +154,9 @@ def main(argv: list[str] | None = None) -> int:
     for i, seed in enumerate(seeds):
         k = args.start + i  # the motion and level follow the seed's place in its range
         motion, level = MOTIONS[k % len(MOTIONS)], LEVELS[k % len(LEVELS)]
-        scenes.append(scene_result(seed, motion, level, args.frames, (320, 240), args.ablate))
+        scenes.append(
+            scene_result(seed, motion, level, args.frames, (320, 240), args.ablate, config)
+        )
         s = scenes[-1]
         print(f"[{i + 1}/{n}] seed {seed} {motion}: follow {s['follow']['jumps']} jumps "
               f"D {s['follow']['D_mm']:.1f}, per-frame {s['per-frame']['jumps']} jumps, alone D "
@@ -154,8 +168,11 @@ def main(argv: list[str] | None = None) -> int:
     name = "people" + ("_tuning" if args.tuning else "") + ("_quick" if args.quick else "")
     name += "_ablate" if args.ablate else ""
     name += f"_from{args.start}" if args.start else ""
+    if args.lost_agreement is not None:
+        name += f"_agree{args.lost_agreement:g}"
     doc = {"machine": machine_summary(), "seeds": seeds, "summary": summary, "scenes": scenes,
-           "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)"}  # fmt: skip
+           "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)" if args.lost_agreement
+           is None else f"TrackerConfig(lost_agreement={args.lost_agreement:g})"}  # fmt: skip
     tmp = out / f".{name}.json.tmp"
     tmp.write_text(json.dumps(doc, indent=1))
     tmp.replace(out / f"{name}.json")
