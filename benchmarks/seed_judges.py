@@ -49,6 +49,7 @@ from tune import decision_measures
 
 import posetrack as pt
 from posetrack._body import BODY_JOINTS
+from posetrack._camera import project_host
 from posetrack._depthobs import NO_FLOOR, tracker_observation
 from posetrack._step import score_hypotheses
 
@@ -75,15 +76,19 @@ def final_deltas(config, shape, intrinsics, depth_m, params, floor) -> np.ndarra
     return np.array([float(score(d, p, fl)) for d, p in zip(depth_m, params)])
 
 
+def _body_accel(kp: np.ndarray) -> np.ndarray:
+    """(T - 2, 13) a track's own body-joint accelerations, mm/frame^2 (frames 1..T-2)."""
+    body = list(BODY_JOINTS)
+    return np.linalg.norm(kp[2:, body] - 2 * kp[1:-1, body] + kp[:-2, body], axis=-1) * 1000.0
+
+
 def judges(seq, res, config) -> dict:
     """The judges of the module docstring for one finished track ``res`` of ``seq``."""
     ok = res.status == 0
     depth_m = seq.depth.astype(np.float32) / np.float32(1000.0)
     deltas = final_deltas(config, res.shape, seq.intrinsics, depth_m, res.params, res.floor)
     kp = res.keypoints3d
-    K = seq.intrinsics
-    x, y, z = kp[..., 0], kp[..., 1], kp[..., 2]
-    uv = np.stack([K.fx * x / z + K.cx, K.fy * y / z + K.cy], -1)
+    uv = project_host(seq.intrinsics, kp)
     det = seq.keypoints2d if seq.keypoints2d.ndim == 3 else seq.keypoints2d[:, 0]
     conf = seq.confidence if seq.confidence.ndim == 2 else seq.confidence[:, 0]
     seen = (conf > CONF) & ok[:, None] & np.isfinite(uv).all(-1)
@@ -93,7 +98,7 @@ def judges(seq, res, config) -> dict:
     body = list(BODY_JOINTS)
     pf = res.per_frame_keypoints3d if res.per_frame_keypoints3d is not None else kp
     gap = np.linalg.norm(pf[:, body] - kp[:, body], axis=-1) * 1000.0
-    acc = np.linalg.norm(kp[2:, body] - 2 * kp[1:-1, body] + kp[:-2, body], axis=-1) * 1000.0
+    acc = _body_accel(kp)
     return {
         "delta_pf": float(np.nanmean(np.where(ok, res.delta, np.nan))),
         "delta_final": float(np.nanmean(np.where(ok, deltas, np.nan))),
@@ -110,9 +115,7 @@ def profiles(kp: np.ndarray, truth: np.ndarray) -> dict:
     (the track's own mean body-joint acceleration, mm/frame^2, frames 1..T-2), rounded to
     0.1: what the windowed splice of :func:`splice_summary` reads."""
     err = np.nanmean(pt.joint_errors(kp, truth), axis=1) * 1000.0
-    body = list(BODY_JOINTS)
-    acc = np.linalg.norm(kp[2:, body] - 2 * kp[1:-1, body] + kp[:-2, body], axis=-1)
-    acc = np.nanmean(acc, axis=1) * 1000.0
+    acc = np.nanmean(_body_accel(kp), axis=1)
     return {
         "err_t": [round(float(v), 1) for v in err],
         "acc_t": [round(float(v), 1) for v in acc],
