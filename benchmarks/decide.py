@@ -24,7 +24,8 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
-(``TrackerConfig(far_side_2d=True)``), ``alllm-norefit`` (that and no
+(``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
+``alllm-norefit`` (that and no
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
 (``SmoothSettings(online_robust=X)``, metres), ``anchorX``
@@ -159,6 +160,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     if variant == "far2d":  # before the numbered "far" variants
         return {"config": pt.TrackerConfig(far_side_2d=True)}
+    if variant == "farbound":
+        return {"config": pt.TrackerConfig(far_side_bound=True)}
     for prefix, (kwarg, make, field) in _NUMBERED.items():
         if variant.startswith(prefix):
             try:

@@ -52,6 +52,7 @@ BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "depth_confidence": 0.0,
     "depth_confidence_far": 0.0,
     "far_side_2d": False,
+    "far_side_bound": False,
     "reinit_keep_facing": 0,
     "lift_band": 0.0,
 }
@@ -161,6 +162,21 @@ class TrackerConfig(eqx.Module):
     (2026-12-03, 48 fresh tuning runs: D +1.36 mm, occluded side views +12 mm, swapped-limb
     frames -15 %; benchmarks/README.md, "The far2d screen"): with an occluder on the near
     side too few 3D landmarks remain. Not in the paper."""
+    far_side_bound: bool = eqx.field(default=False, static=True)
+    """Off by default. In a side view (as ``far_side_2d``) the far side's shoulder, hip,
+    elbow, wrist, knee, ankle, eye and ear and the neck
+    (:func:`posetrack._visibility.side_view_bounds`) are fitted by their 2D detections, and
+    their lifted depth becomes a one-sided bound (:func:`posetrack._observe.as_bounds`): the
+    fit keeps the joint behind the surface its pixels show (the near side's) instead of on
+    it, and they leave the track-loss test's agreement share (they disagree with any right
+    pose). Unlike ``far_side_2d`` their depth still constrains the fit. Turns on
+    ``fit.residuals.depth_bounds`` (and the offline smoother's, in ``Tracker``). Not with
+    ``far_side_2d``. Not in the paper."""
+    bound_min_landmarks: float = 5.0
+    """``far_side_bound`` applies only while at least this many landmarks keep their depth
+    besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
+    used as lifted: on occluded walk_across tuning clips the bounds alone let the per-frame
+    pose drift (1249: 57.6 -> 68.9 mm with no minimum, 56.7 with 5, 59.4 with 7). Traced."""
     surface_offset: bool = eqx.field(default=True, static=True)
     """Push lifted landmarks back by the local body radius (surface -> joint centre). Not in
     the paper; see README "Beyond the paper"."""
@@ -289,6 +305,9 @@ class TrackerConfig(eqx.Module):
             )
         elif not isinstance(self.fit, FitSettings):
             raise ValueError(f"TrackerConfig.fit must be a FitSettings or None, got {self.fit!r}")
+        if self.far_side_bound and not self.fit.residuals.depth_bounds:
+            bounds = dataclasses.replace(self.fit.residuals, depth_bounds=True)
+            self.fit = dataclasses.replace(self.fit, residuals=bounds)
         # Python numbers become floats, so an int (r=0) never changes the traced dtype; arrays
         # (a vmapped sweep over configurations) pass through.
         # The traced fields are the non-static ones: the declarations below are the only list.
@@ -318,6 +337,9 @@ class TrackerConfig(eqx.Module):
         v = self.depth_confidence
         if isinstance(v, float) and not 0.0 <= v <= 1.0:
             raise ValueError(f"TrackerConfig.depth_confidence must be in [0, 1], got {v}")
+        v = self.bound_min_landmarks
+        if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"TrackerConfig.bound_min_landmarks must be >= 0, got {v!r}")
         v = self.depth_confidence_far
         if isinstance(v, float) and not 0.0 <= v <= 1.0:
             raise ValueError(f"TrackerConfig.depth_confidence_far must be in [0, 1], got {v}")
@@ -329,6 +351,11 @@ class TrackerConfig(eqx.Module):
             raise ValueError(
                 f"TrackerConfig.limb_hypotheses must be in 0..4 and smaller than the number of "
                 f"hypotheses ({self.n}), got {self.limb_hypotheses}"
+            )
+        if self.far_side_2d and self.far_side_bound:
+            raise ValueError(
+                "TrackerConfig: far_side_2d and far_side_bound are two treatments of the same "
+                "landmarks; set one of them, got both True"
             )
         n = self.reinit_keep_facing
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:

@@ -41,7 +41,10 @@ class Landmarks(eqx.Module):
     confidence: Float[Array, " kpt"]
     """Detector confidence in [0, 1] (0 where not detected)."""
     points3d: Float[Array, "kpt 3"]
-    """O_i: lifted 3D landmarks, metres, camera frame (zeros where F_i is false)."""
+    """O_i: lifted 3D landmarks, metres, camera frame. Where F_i is false: zeros, or a bound
+    (:func:`as_bounds`): the lifted point of a keypoint whose pixels show a surface in front
+    of the joint, which the fit keeps the joint behind (:func:`posetrack._residuals.
+    landmark_residuals`)."""
     detected: Bool[Array, " kpt"]
     """f_i: the keypoint was detected (confidence above threshold, finite, inside the image)."""
     has_depth: Bool[Array, " kpt"]
@@ -179,6 +182,32 @@ def without_depth(landmarks: Landmarks, drop: Bool[Array, " kpt"]) -> Landmarks:
         detected=landmarks.detected,
         has_depth=has_depth,
     )
+
+
+def as_bounds(landmarks: Landmarks, mask: Bool[Array, " kpt"]) -> Landmarks:
+    """``landmarks`` with F_i cleared where ``mask``, but O_i kept as a bound: those keypoints
+    are fitted by their 2D detections, and their lifted depth only keeps the joint from coming
+    in front of it (a one-sided residual, :func:`posetrack._residuals.landmark_residuals`).
+    Keypoints without depth are unchanged. Jittable.
+
+    For a keypoint whose pixels show a surface in front of the joint (the far side's limbs
+    and torso in a side view show the near side), the depth is a lower bound of the joint's,
+    not its place: fitting it as a 3D landmark pulls the body toward the camera, dropping it
+    (:func:`without_depth`) loses what it does say.
+    """
+    return Landmarks(
+        keypoints2d=landmarks.keypoints2d,
+        confidence=landmarks.confidence,
+        points3d=landmarks.points3d,
+        detected=landmarks.detected,
+        has_depth=landmarks.has_depth & ~mask,
+    )
+
+
+def depth_bounds(landmarks: Landmarks) -> Bool[Array, " kpt"]:
+    """Which keypoints carry a bound (:func:`as_bounds`): detected, F_i false, O_i set."""
+    set_ = jnp.any(landmarks.points3d != 0, axis=-1)
+    return landmarks.detected & ~landmarks.has_depth & set_
 
 
 #: Torso keypoints (neck, shoulders, hips) whose lifted depths place the body for

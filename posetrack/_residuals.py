@@ -39,7 +39,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, keypoints
 from ._camera import Intrinsics, project
-from ._observe import Landmarks
+from ._observe import Landmarks, depth_bounds
 from ._rotation import quat_normalize, quat_to_matrix
 
 
@@ -61,6 +61,10 @@ class ResidualSettings:
     neck_limit: float = 0.0
     """Weight of the soft limit on the head's turn about the torso's vertical
     (:func:`neck_limit_residuals`; 0: none, the paper's model)."""
+    depth_bounds: bool = False
+    """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
+    (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
+    ``TrackerConfig(far_side_bound=True)`` turns it on. Not in the paper."""
 
     def __post_init__(self):
         if self.loss not in ("l1", "l2"):
@@ -98,10 +102,19 @@ def landmark_residuals(
     A keypoint contributes its 3D residual where ``use3d`` and its 2D residual where ``use2d``;
     the caller guarantees ``use3d`` implies F_i and ``use2d`` implies f_i and not ``use3d``
     (Eq. (1)'s F_i and f_i - F_i). Masked entries are exactly zero.
+
+    With ``settings.depth_bounds`` a 2D landmark that carries a depth bound
+    (:func:`posetrack._observe.as_bounds`) adds ``max(0, z(O_i) - z(M_i))`` in its 3D slot's
+    depth component: one-sided, zero while the joint lies behind the surface its pixels show.
+    Not in the paper.
     """
     M = keypoints(shape, params)
     m = project(intrinsics, M)
     e3 = (M - landmarks.points3d) * use3d[:, None]
+    if settings.depth_bounds:
+        bound = use2d & depth_bounds(landmarks)
+        in_front = jnp.maximum(landmarks.points3d[:, 2] - M[:, 2], 0.0)
+        e3 = e3.at[:, 2].add(jnp.where(bound, in_front, 0.0))
     e2 = (m - landmarks.keypoints2d) * (use2d * metres_per_pixel)[:, None]
     if settings.loss == "l1":
         e3 = _sqrt_reweight(e3, settings.eps)

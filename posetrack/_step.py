@@ -26,11 +26,11 @@ from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
 from ._limbs import limb_hypotheses
-from ._observe import Landmarks, confident_depth, without_depth
+from ._observe import Landmarks, as_bounds, confident_depth, without_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
 from ._select import consensus_set, landmark_subsets
-from ._visibility import far_side, self_occluded
+from ._visibility import far_side, self_occluded, side_view_bounds
 
 #: Frame status codes: what a frame's step (and the host's track-loss logic around it) made of
 #: the frame. :mod:`posetrack._tracker` (host) and :mod:`posetrack._chunk` (inside a scan) share
@@ -237,6 +237,11 @@ def tracker_step(
     if config.far_side_2d:  # (off by default) the far side's limbs and torso, whatever the
         # detector's confidence: their pixels show the near side's surface in a side view
         lm = without_depth(lm, far_side(state.best, torso=True))
+    elif config.far_side_bound:  # (off by default) those, the far eye and ear and the neck
+        # in 2D, their depth a bound the joint stays behind (a surface in front of it)
+        bounds = side_view_bounds(state.best) & lm.has_depth
+        enough = jnp.sum(lm.has_depth & ~bounds) >= config.bound_min_landmarks
+        lm = as_bounds(lm, bounds & enough)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
         # Every other hypothesis leaves out the 3D landmarks that the previous output says

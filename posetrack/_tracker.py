@@ -592,6 +592,10 @@ class Tracker:
         # What the motion model's compiled programs see: ``both_ways`` is the run's business,
         # not theirs (one program either way, and one cache entry for ``posetrack warmup``).
         self._smoother = dataclasses.replace(motion, both_ways=False)
+        if config is not None and config.far_side_bound and not motion.residuals.depth_bounds:
+            # The step's depth bounds (TrackerConfig.far_side_bound) bound the smoother too.
+            bounds = dataclasses.replace(motion.residuals, depth_bounds=True)
+            self._smoother = dataclasses.replace(self._smoother, residuals=bounds)
         if isinstance(sides, str) and sides == "auto":
             sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):

@@ -122,3 +122,21 @@ def far_side(params: Float[Array, 43], torso: bool = False) -> Bool[Array, " kpt
     right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
     flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > SIDE_VIEW_SIN)
     return flags.at[left].set(turned < -SIDE_VIEW_SIN)
+
+
+#: The eyes and ears, (right, left) keypoint indices.
+FACE_PAIRS: tuple[tuple[int, int], ...] = ((14, 15), (16, 17))
+#: The neck's keypoint index.
+NECK = 1
+
+
+def side_view_bounds(params: Float[Array, 43]) -> Bool[Array, " kpt"]:
+    """The keypoints whose pixels show a surface in front of the joint in a side view (as
+    :func:`far_side` decides one): the far side's limbs, shoulder, hip, eye and ear, and the
+    neck, which then lines up behind the near shoulder. Their lifted depth is a bound
+    (:func:`posetrack._observe.as_bounds`, ``TrackerConfig.far_side_bound``). Jittable."""
+    flags = far_side(params, torso=True)
+    right_far, left_far = flags[TORSO_PAIRS[0][0]], flags[TORSO_PAIRS[0][1]]
+    right, left = (jnp.asarray(side) for side in zip(*FACE_PAIRS, strict=True))
+    flags = flags.at[right].set(right_far).at[left].set(left_far)
+    return flags.at[NECK].set(right_far | left_far)

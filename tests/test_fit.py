@@ -13,8 +13,8 @@ from posetrack import _body as B
 from posetrack import _so3 as S
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose
 from posetrack._init import estimate_shape, initial_pose
-from posetrack._observe import Landmarks
-from posetrack._residuals import ResidualSettings
+from posetrack._observe import Landmarks, as_bounds, depth_bounds, without_depth
+from posetrack._residuals import ResidualSettings, landmark_residuals, pixel_scale
 
 INTR = Intrinsics.create(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 
@@ -73,6 +73,50 @@ def test_lm_recovers_known_pose_from_noise_free_landmarks(fit_jit, loss):
         )
         assert px.max() < 0.5, f"seed {seed}: reprojection error {px.max():.2f} px"
         assert np.delete(err, two_d).max() < 0.005
+
+
+def test_a_depth_bound_costs_only_a_joint_in_front_of_it():
+    """``as_bounds`` with ``ResidualSettings(depth_bounds=True)``: the right wrist's and hip's
+    lifted depth 10 cm in front of / behind the true joint. A bound in front of the joint
+    (the surface seen in front of a hidden joint) costs nothing; one behind it costs the
+    10 cm in the depth slot alone, and only where the keypoint is fitted in 2D; the 2D
+    residuals are those of the keypoint without depth, and a keypoint with depth fitted in 3D
+    is unchanged."""
+    shape = B.BodyShape.default()
+    true = _true_pose(3)
+    lm = _landmarks(shape, true)
+    wrist, hip = 4, 8
+    pts = lm.points3d.at[wrist, 2].add(-0.1).at[hip, 2].add(0.1)
+    lm = dataclasses.replace(lm, points3d=pts)
+    mask = jnp.zeros(18, bool).at[jnp.array([wrist, hip])].set(True)
+    bounded = as_bounds(lm, mask)
+    assert np.asarray(depth_bounds(bounded)).tolist() == np.asarray(mask).tolist()
+    assert not np.asarray(depth_bounds(without_depth(lm, mask))).any()
+    assert not np.asarray(depth_bounds(lm)).any()  # plain landmarks carry no bound
+    mpp = pixel_scale(true, shape, INTR)
+
+    def res(landmarks, use2d, bounds=True):
+        use3d = landmarks.has_depth
+        settings = ResidualSettings(loss="l2", depth_bounds=bounds)
+        e = landmark_residuals(
+            true, shape, landmarks, INTR, use3d=use3d, use2d=use2d & ~use3d,
+            metres_per_pixel=mpp, settings=settings,
+        )  # fmt: skip
+        return np.asarray(e)
+
+    all_ = jnp.ones(18, bool)
+    e = res(bounded, all_)
+    assert e[wrist, :3].tolist() == [0.0, 0.0, 0.0]  # behind its bound: free
+    np.testing.assert_allclose(e[hip, :3], [0.0, 0.0, 0.1], atol=1e-5)  # 10 cm in front
+    plain_2d = res(without_depth(lm, mask), all_)
+    np.testing.assert_array_equal(e[:, 3:], plain_2d[:, 3:])
+    others = np.ones(18, bool)
+    others[[wrist, hip]] = False
+    np.testing.assert_array_equal(e[others], res(lm, all_)[others])
+    # Not fitted in 2D (a subset left it out): no bound either.
+    assert not res(bounded, all_.at[hip].set(False))[hip].any()
+    # Without ResidualSettings.depth_bounds (the default) a bound is a 2D-only keypoint.
+    np.testing.assert_array_equal(res(bounded, all_, bounds=False), plain_2d)
 
 
 def test_masks_exclude_landmarks():

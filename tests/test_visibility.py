@@ -11,8 +11,9 @@ import posetrack as pt
 from posetrack import _body as B
 from posetrack._depthobs import NO_FLOOR
 from posetrack._geometry import surface_offsets
+from posetrack._observe import depth_bounds
 from posetrack._rotation import quat_multiply
-from posetrack._visibility import far_side, self_occluded
+from posetrack._visibility import far_side, self_occluded, side_view_bounds
 
 INTR = pt.Intrinsics.create(fx=280.0, fy=280.0, cx=159.5, cy=119.5, width=320, height=240)
 SHAPE = pt.BodyShape.default(jnp.float32)
@@ -225,6 +226,11 @@ def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
     far_torso = [2, 8] if far == R_WRIST else [5, 11]
     assert torso[far_limbs + far_torso].all() and torso.sum() == 6
     assert not np.asarray(far_side(front, torso=True)).any()
+    # The bounds of a side view: those, the far eye and ear and the neck; facing: none.
+    bounds = np.asarray(side_view_bounds(p))
+    far_face = [14, 16] if far == R_WRIST else [15, 17]
+    assert bounds[far_limbs + far_torso + far_face + [1]].all() and bounds.sum() == 9
+    assert not np.asarray(side_view_bounds(front)).any()
 
 
 def test_far_side_2d_fits_the_far_side_in_2d_at_full_confidence(side, step):
@@ -243,6 +249,40 @@ def test_far_side_2d_fits_the_far_side_in_2d_at_full_confidence(side, step):
     assert not np.asarray(est.used3d)[:, [far, *far_torso]].any()
     plain = _side_step(side, step, GATED, conf)
     assert np.asarray(plain.landmarks.has_depth)[[far, *far_torso]].all()
+
+
+def test_far_side_bound_keeps_the_far_sides_depth_as_a_bound(side, step):
+    """``far_side_bound``: the far wrist, shoulder, hip, eye and ear and the neck are fitted
+    in 2D (no hypothesis draws their 3D landmarks) and keep their lifted points as bounds
+    (the near side's surface seen on their pixels); the near ones keep their depth. Lifted
+    onto the near side, those landmarks disagree with the true pose, which lowers the
+    agreement of the plain step; as bounds they leave the agreement share. Too few landmarks
+    left with depth: no bounds."""
+    _, _, _, far, near = side
+    far_torso = [1, 2, 8, 14, 16] if far == R_WRIST else [1, 5, 11, 15, 17]
+    near_torso = [5, 11, 15, 17] if far == R_WRIST else [2, 8, 14, 16]
+    conf = np.full(18, 0.9, np.float32)
+    est = _side_step(side, step, GATED.replace(far_side_bound=True), conf)
+    plain = _side_step(side, step, GATED, conf)
+    far_all = [far, *far_torso]
+    bounds = np.asarray(depth_bounds(est.landmarks))
+    assert bounds[far_all].all() and not bounds[[near, *near_torso]].any()
+    assert np.asarray(est.landmarks.has_depth)[[near, *near_torso]].all()
+    np.testing.assert_array_equal(est.landmarks.points3d, plain.landmarks.points3d)
+    assert not np.asarray(est.used3d)[:, far_all].any()
+    assert np.asarray(plain.landmarks.has_depth)[far_all].all()
+    assert float(plain.agreement) < 0.9 < float(est.agreement)
+    # Fewer landmarks with depth besides the bounded ones than bound_min_landmarks (here 9
+    # of 18 remain): the landmarks are used as lifted.
+    few = _side_step(side, step, GATED.replace(far_side_bound=True, bound_min_landmarks=10), conf)
+    assert not np.asarray(depth_bounds(few.landmarks)).any()
+    np.testing.assert_array_equal(few.landmarks.has_depth, plain.landmarks.has_depth)
+    with pytest.raises(ValueError, match="bound_min_landmarks"):
+        GATED.replace(bound_min_landmarks=-1)
+    assert GATED.replace(far_side_bound=True).fit.residuals.depth_bounds
+    assert not GATED.fit.residuals.depth_bounds
+    with pytest.raises(ValueError, match="far_side_2d and far_side_bound"):
+        GATED.replace(far_side_2d=True, far_side_bound=True)
 
 
 def test_the_far_side_gate_spares_the_near_sides_unconfident_keypoint(side, step):
