@@ -172,6 +172,12 @@ class TrackerConfig(eqx.Module):
     pose). Unlike ``far_side_2d`` their depth still constrains the fit. Turns on
     ``fit.residuals.depth_bounds`` (and the offline smoother's, in ``Tracker``). Not with
     ``far_side_2d``. Not in the paper."""
+    bound_turn_sin: float = 0.75
+    """``far_side_bound`` applies while the previous output is turned by more than this sine
+    of its angle from facing the camera (0.75: 49 degrees). At ``far_side``'s 0.5 (30
+    degrees) the far side is still mostly seen, and treating its depth as a bound let the
+    body drift back (tuning clips 1277, 1287: +20 and +15 mm; both unchanged at 0.75, which
+    keeps the gains of 1211, 1276 and 1286; 0.87 lost 1286's). Traced."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
@@ -337,6 +343,9 @@ class TrackerConfig(eqx.Module):
         v = self.depth_confidence
         if isinstance(v, float) and not 0.0 <= v <= 1.0:
             raise ValueError(f"TrackerConfig.depth_confidence must be in [0, 1], got {v}")
+        v = self.bound_turn_sin
+        if isinstance(v, float) and not 0.0 <= v <= 1.0:
+            raise ValueError(f"TrackerConfig.bound_turn_sin must be in [0, 1], got {v}")
         v = self.bound_min_landmarks
         if isinstance(v, float) and not (math.isfinite(v) and v >= 0):
             raise ValueError(f"TrackerConfig.bound_min_landmarks must be >= 0, got {v!r}")

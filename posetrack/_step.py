@@ -239,7 +239,7 @@ def tracker_step(
         lm = without_depth(lm, far_side(state.best, torso=True))
     elif config.far_side_bound:  # (off by default) those, the far eye and ear and the neck
         # in 2D, their depth a bound the joint stays behind (a surface in front of it)
-        bounds = side_view_bounds(state.best) & lm.has_depth
+        bounds = side_view_bounds(state.best, config.bound_turn_sin) & lm.has_depth
         enough = jnp.sum(lm.has_depth & ~bounds) >= config.bound_min_landmarks
         lm = as_bounds(lm, bounds & enough)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)

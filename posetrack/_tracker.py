@@ -160,7 +160,8 @@ class TrackResult:
     confidence: np.ndarray
     """(T, 18) per-keypoint confidence in [0, 1] (see :func:`keypoint_confidence`)."""
     landmarks3d: np.ndarray
-    """(T, 18, 3) lifted landmarks O_i (zeros where F_i is false)."""
+    """(T, 18, 3) lifted landmarks O_i (zeros where F_i is false, except the depth bounds of
+    ``TrackerConfig(far_side_bound=True)``, :func:`posetrack._observe.as_bounds`)."""
     has_depth: np.ndarray
     """(T, 18) F_i flags."""
     detected: np.ndarray

@@ -106,7 +106,9 @@ SIDE_VIEW_SIN = 0.5
 TORSO_PAIRS: tuple[tuple[int, int], ...] = ((2, 5), (8, 11))
 
 
-def far_side(params: Float[Array, 43], torso: bool = False) -> Bool[Array, " kpt"]:
+def far_side(
+    params: Float[Array, 43], torso: bool = False, sin: Float[Array, ""] | float = SIDE_VIEW_SIN
+) -> Bool[Array, " kpt"]:
     """The elbow, wrist, knee and ankle (``LIMB_PAIRS``) of the side a pose turns away from
     the camera; with ``torso`` (static) its shoulder and hip too (:data:`TORSO_PAIRS`).
 
@@ -114,14 +116,15 @@ def far_side(params: Float[Array, 43], torso: bool = False) -> Bool[Array, " kpt
     pixels is the near side's surface. The model's torso is rigid, so the shoulders' and
     hips' right-to-left direction is the root's x axis: its camera-z component is the depth
     the right side lies behind the left per metre of width (the sine of the turn). Above
-    :data:`SIDE_VIEW_SIN` the right limbs are flagged, below its negative the left ones;
-    nothing in between (a person facing the camera, or away). Jittable.
+    ``sin`` (default :data:`SIDE_VIEW_SIN`; may be traced) the right limbs are flagged,
+    below its negative the left ones; nothing in between (a person facing the camera, or
+    away). Jittable.
     """
     turned = -quat_to_matrix(quat_normalize(params[3:7]))[2, 0]
     pairs = LIMB_PAIRS + (TORSO_PAIRS if torso else ())
     right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
-    flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > SIDE_VIEW_SIN)
-    return flags.at[left].set(turned < -SIDE_VIEW_SIN)
+    flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > sin)
+    return flags.at[left].set(turned < -sin)
 
 
 #: The eyes and ears, (right, left) keypoint indices.
@@ -130,12 +133,15 @@ FACE_PAIRS: tuple[tuple[int, int], ...] = ((14, 15), (16, 17))
 NECK = 1
 
 
-def side_view_bounds(params: Float[Array, 43]) -> Bool[Array, " kpt"]:
+def side_view_bounds(
+    params: Float[Array, 43], sin: Float[Array, ""] | float = SIDE_VIEW_SIN
+) -> Bool[Array, " kpt"]:
     """The keypoints whose pixels show a surface in front of the joint in a side view (as
     :func:`far_side` decides one): the far side's limbs, shoulder, hip, eye and ear, and the
     neck, which then lines up behind the near shoulder. Their lifted depth is a bound
-    (:func:`posetrack._observe.as_bounds`, ``TrackerConfig.far_side_bound``). Jittable."""
-    flags = far_side(params, torso=True)
+    (:func:`posetrack._observe.as_bounds`, ``TrackerConfig.far_side_bound``). ``sin``: as
+    :func:`far_side`'s. Jittable."""
+    flags = far_side(params, torso=True, sin=sin)
     right_far, left_far = flags[TORSO_PAIRS[0][0]], flags[TORSO_PAIRS[0][1]]
     right, left = (jnp.asarray(side) for side in zip(*FACE_PAIRS, strict=True))
     flags = flags.at[right].set(right_far).at[left].set(left_far)

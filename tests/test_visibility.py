@@ -231,6 +231,12 @@ def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
     far_face = [14, 16] if far == R_WRIST else [15, 17]
     assert bounds[far_limbs + far_torso + far_face + [1]].all() and bounds.sum() == 9
     assert not np.asarray(side_view_bounds(front)).any()
+    # Turned 45 degrees (sine 0.71): a side view at 0.5, not at far_side_bound's 0.75.
+    eighth = np.pi / 8
+    yaw45 = jnp.asarray([np.cos(eighth), 0.0, np.sin(eighth), 0.0], jnp.float32)
+    p45 = B.normalize_params(front.at[3:7].set(quat_multiply(yaw45, front[3:7])))
+    assert np.asarray(side_view_bounds(p45, 0.5)).sum() == 9
+    assert not np.asarray(side_view_bounds(p45, 0.75)).any()
 
 
 def test_far_side_2d_fits_the_far_side_in_2d_at_full_confidence(side, step):
@@ -279,6 +285,8 @@ def test_far_side_bound_keeps_the_far_sides_depth_as_a_bound(side, step):
     np.testing.assert_array_equal(few.landmarks.has_depth, plain.landmarks.has_depth)
     with pytest.raises(ValueError, match="bound_min_landmarks"):
         GATED.replace(bound_min_landmarks=-1)
+    with pytest.raises(ValueError, match="bound_turn_sin"):
+        GATED.replace(bound_turn_sin=1.5)
     assert GATED.replace(far_side_bound=True).fit.residuals.depth_bounds
     assert not GATED.fit.residuals.depth_bounds
     with pytest.raises(ValueError, match="far_side_2d and far_side_bound"):
