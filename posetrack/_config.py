@@ -163,9 +163,10 @@ class TrackerConfig(eqx.Module):
     frames -15 %; benchmarks/README.md, "The far2d screen"): with an occluder on the near
     side too few 3D landmarks remain. Not in the paper."""
     far_side_bound: bool = eqx.field(default=False, static=True)
-    """Off by default. In a side view (as ``far_side_2d``) the far side's shoulder, hip,
-    elbow, wrist, knee, ankle, eye and ear and the neck
-    (:func:`posetrack._visibility.side_view_bounds`) are fitted by their 2D detections, and
+    """Off by default. In a side view (turned more than ``bound_turn_sin``) the far side's
+    shoulder, elbow, wrist, hip, eye and ear and the neck
+    (:func:`posetrack._visibility.side_view_bounds`; not the far knee and ankle, which the
+    camera sees between the legs) are fitted by their 2D detections, and
     their lifted depth becomes a one-sided bound (:func:`posetrack._observe.as_bounds`): the
     fit keeps the joint behind the surface its pixels show (the near side's) instead of on
     it, and they leave the track-loss test's agreement share (they disagree with any right

@@ -133,16 +133,27 @@ FACE_PAIRS: tuple[tuple[int, int], ...] = ((14, 15), (16, 17))
 NECK = 1
 
 
+#: The knees and ankles, (right, left) keypoint indices.
+LEG_PAIRS: tuple[tuple[int, int], ...] = ((9, 12), (10, 13))
+
+
 def side_view_bounds(
-    params: Float[Array, 43], sin: Float[Array, ""] | float = SIDE_VIEW_SIN
+    params: Float[Array, 43], sin: Float[Array, ""] | float = SIDE_VIEW_SIN, legs: bool = False
 ) -> Bool[Array, " kpt"]:
     """The keypoints whose pixels show a surface in front of the joint in a side view (as
-    :func:`far_side` decides one): the far side's limbs, shoulder, hip, eye and ear, and the
-    neck, which then lines up behind the near shoulder. Their lifted depth is a bound
-    (:func:`posetrack._observe.as_bounds`, ``TrackerConfig.far_side_bound``). ``sin``: as
-    :func:`far_side`'s. Jittable."""
+    :func:`far_side` decides one): the far side's shoulder, elbow, wrist, hip, eye and ear,
+    and the neck, which then lines up behind the near shoulder; with ``legs`` (static) the
+    far knee and ankle too. Their lifted depth is a bound (:func:`posetrack._observe.
+    as_bounds`, ``TrackerConfig.far_side_bound``). ``sin``: as :func:`far_side`'s. Jittable.
+
+    The legs are left out by default: in side views of walking and turning the far knee and
+    ankle are seen between the legs and lifted within 13 mm of the joint (median), while the
+    far shoulder, elbow and hip are lifted 17-35 cm too close (benchmarks/README.md, "Which
+    far-side landmarks are wrong in a side view")."""
     flags = far_side(params, torso=True, sin=sin)
     right_far, left_far = flags[TORSO_PAIRS[0][0]], flags[TORSO_PAIRS[0][1]]
     right, left = (jnp.asarray(side) for side in zip(*FACE_PAIRS, strict=True))
     flags = flags.at[right].set(right_far).at[left].set(left_far)
+    if not legs:
+        flags = flags.at[jnp.asarray([k for pair in LEG_PAIRS for k in pair])].set(False)
     return flags.at[NECK].set(right_far | left_far)

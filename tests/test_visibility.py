@@ -226,16 +226,20 @@ def test_far_side_flags_the_limbs_turned_away_and_nothing_facing(side, facing):
     far_torso = [2, 8] if far == R_WRIST else [5, 11]
     assert torso[far_limbs + far_torso].all() and torso.sum() == 6
     assert not np.asarray(far_side(front, torso=True)).any()
-    # The bounds of a side view: those, the far eye and ear and the neck; facing: none.
+    # The bounds of a side view: those but the legs, the far eye and ear and the neck (with
+    # the legs: the far knee and ankle too); facing: none.
     bounds = np.asarray(side_view_bounds(p))
     far_face = [14, 16] if far == R_WRIST else [15, 17]
-    assert bounds[far_limbs + far_torso + far_face + [1]].all() and bounds.sum() == 9
+    far_arm, far_legs = far_limbs[:2], far_limbs[2:]
+    assert bounds[far_arm + far_torso + far_face + [1]].all() and bounds.sum() == 7
+    with_legs = np.asarray(side_view_bounds(p, legs=True))
+    assert with_legs[far_legs].all() and with_legs.sum() == 9
     assert not np.asarray(side_view_bounds(front)).any()
     # Turned 45 degrees (sine 0.71): a side view at 0.5, not at far_side_bound's 0.75.
     eighth = np.pi / 8
     yaw45 = jnp.asarray([np.cos(eighth), 0.0, np.sin(eighth), 0.0], jnp.float32)
     p45 = B.normalize_params(front.at[3:7].set(quat_multiply(yaw45, front[3:7])))
-    assert np.asarray(side_view_bounds(p45, 0.5)).sum() == 9
+    assert np.asarray(side_view_bounds(p45, 0.5)).sum() == 7
     assert not np.asarray(side_view_bounds(p45, 0.75)).any()
 
 
@@ -277,10 +281,12 @@ def test_far_side_bound_keeps_the_far_sides_depth_as_a_bound(side, step):
     np.testing.assert_array_equal(est.landmarks.points3d, plain.landmarks.points3d)
     assert not np.asarray(est.used3d)[:, far_all].any()
     assert np.asarray(plain.landmarks.has_depth)[far_all].all()
-    assert float(plain.agreement) < 0.9 < float(est.agreement)
-    # Fewer landmarks with depth besides the bounded ones than bound_min_landmarks (here 9
+    # (The far knee and ankle keep their depth: in this rest pose they hide behind the near
+    # leg and still disagree, which a walking person's legs rarely do.)
+    assert float(est.agreement) > float(plain.agreement) + 0.2
+    # Fewer landmarks with depth besides the bounded ones than bound_min_landmarks (here 11
     # of 18 remain): the landmarks are used as lifted.
-    few = _side_step(side, step, GATED.replace(far_side_bound=True, bound_min_landmarks=10), conf)
+    few = _side_step(side, step, GATED.replace(far_side_bound=True, bound_min_landmarks=12), conf)
     assert not np.asarray(depth_bounds(few.landmarks)).any()
     np.testing.assert_array_equal(few.landmarks.has_depth, plain.landmarks.has_depth)
     with pytest.raises(ValueError, match="bound_min_landmarks"):
