@@ -80,11 +80,16 @@ def test_static_fields_are_declared_static():
     config = TrackerConfig()
     leaves = jax.tree.leaves(config)
     assert all(isinstance(v, float) for v in leaves)
-    assert len(leaves) == 20
+    assert len(leaves) == 22
     a = TrackerConfig(sigma_h=0.3)
     b = TrackerConfig(sigma_h=0.7, depth_confidence=0.8, depth_confidence_far=1.0)
     assert jax.tree.structure(a) == jax.tree.structure(b)
-    for static in (dict(num_hypotheses=3), dict(reseed=False), dict(score_width=80)):
+    for static in (
+        dict(num_hypotheses=3),
+        dict(reseed=False),
+        dict(score_width=80),
+        dict(far_side_bound=True),
+    ):
         assert jax.tree.structure(TrackerConfig(**static)) != jax.tree.structure(config)
     assert TrackerConfig(r=0).r == 0.0 and isinstance(TrackerConfig(r=0).r, float)
 
