@@ -195,13 +195,7 @@ def as_bounds(landmarks: Landmarks, mask: Bool[Array, " kpt"]) -> Landmarks:
     not its place: fitting it as a 3D landmark pulls the body toward the camera, dropping it
     (:func:`without_depth`) loses what it does say.
     """
-    return Landmarks(
-        keypoints2d=landmarks.keypoints2d,
-        confidence=landmarks.confidence,
-        points3d=landmarks.points3d,
-        detected=landmarks.detected,
-        has_depth=landmarks.has_depth & ~mask,
-    )
+    return eqx.tree_at(lambda lm: lm.has_depth, landmarks, landmarks.has_depth & ~mask)
 
 
 def depth_bounds(landmarks: Landmarks) -> Bool[Array, " kpt"]:

@@ -133,8 +133,8 @@ FACE_PAIRS: tuple[tuple[int, int], ...] = ((14, 15), (16, 17))
 NECK = 1
 
 
-#: The knees and ankles, (right, left) keypoint indices.
-LEG_PAIRS: tuple[tuple[int, int], ...] = ((9, 12), (10, 13))
+#: The knees and ankles, (right, left) keypoint indices (the legs' half of ``LIMB_PAIRS``).
+LEG_PAIRS: tuple[tuple[int, int], ...] = LIMB_PAIRS[2:]
 
 
 def side_view_bounds(
