@@ -6,9 +6,10 @@ every variant. The change of a run is the candidate's D minus the baseline's, av
 the tracker seeds the run has (the same seeds for both, so the pair shares every clip and
 seed); the table gives, per group and occlusion and over all runs, the mean change, its
 standard deviation and standard error over the runs, ``t`` = mean / standard error, the runs
-better and worse by more than 5 mm, and swapped-limb frames summed. ``spread`` is the
-baseline's own standard deviation of D across tracker seeds, averaged over the runs: what a
-decision on one tracker seed would have read as change.
+better and worse by more than 5 mm, swapped-limb frames summed, and both variants' mean
+acceleration error and coverage. ``spread`` is the baseline's own standard deviation of D
+across tracker seeds, averaged over the runs: what a decision on one tracker seed would have
+read as change.
 
 Why (benchmarks/README.md, "A side view hides the far arm"): on a clip whose track comes
 apart somewhere, the tracker seed alone moves D by 30-80 mm, so a mean change decided on one
@@ -108,13 +109,17 @@ def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
             "change": float((c - b).mean()), "spread": float(b.std(ddof=1)) if len(b) > 1 else 0.0,
             "base_swaps": sum(by_seed[t][base]["swaps"] for t in full),
             "candidate_swaps": sum(by_seed[t][candidate]["swaps"] for t in full),
+            **{f"{role}_{m}": float(np.mean([by_seed[t][name][m] for t in full]))
+               for role, name in (("base", base), ("candidate", candidate))
+               for m in ("accel", "cov")},
         })  # fmt: skip
     return out
 
 
 def summary(runs: list[dict]) -> dict:
     """Mean change over ``runs``, its standard deviation, standard error and t, the runs better
-    and worse by more than ``CLEAR_MM``, swapped-limb frames summed, the mean spread."""
+    and worse by more than ``CLEAR_MM``, swapped-limb frames summed, the mean spread, and both
+    variants' mean acceleration error (mm/frame^2) and coverage."""
     change = np.array([r["change"] for r in runs])
     n = len(change)
     sd = float(change.std(ddof=1)) if n > 1 else math.nan
@@ -129,6 +134,8 @@ def summary(runs: list[dict]) -> dict:
         "base_swaps": sum(r["base_swaps"] for r in runs),
         "candidate_swaps": sum(r["candidate_swaps"] for r in runs),
         "spread": float(np.mean([r["spread"] for r in runs])),
+        **{f"{role}_{m}": float(np.mean([r[f"{role}_{m}"] for r in runs]))
+           for role in ("base", "candidate") for m in ("accel", "cov")},
     }  # fmt: skip
 
 
@@ -200,13 +207,16 @@ def main() -> int:
         f"{runs[0]['tseeds']}"
     )
     head = f"{'runs':<28} {'n':>3} {'base':>7} {'cand':>7} {'change':>7} {'se':>5} {'t':>6}"
-    print(head + f" {'better/worse':>12} {'swaps':>10} {'spread':>6}")
+    print(
+        head + f" {'better/worse':>12} {'swaps':>10} {'spread':>6} {'accel':>11} {'coverage':>11}"
+    )
     for label, s in rows:
         print(
             f"{label:<28} {s['runs']:>3} {s['base_D']:>7.2f} {s['candidate_D']:>7.2f} "
             f"{s['change']:>+7.2f} {s['se']:>5.2f} {s['t']:>+6.2f} "
             f"{s['better']:>5} / {s['worse']:<4} {s['base_swaps']:>4}->{s['candidate_swaps']:<4} "
-            f"{s['spread']:>6.1f}"
+            f"{s['spread']:>6.1f} {s['base_accel']:>5.2f}->{s['candidate_accel']:<5.2f} "
+            f"{s['base_cov']:.3f}->{s['candidate_cov']:.3f}"
         )
     if a.json:
         doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs}

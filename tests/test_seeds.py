@@ -232,12 +232,11 @@ def test_the_loss_diagnosis_pairs_frames_and_keeps_to_its_seed_ranges(seeds, mon
             ls.main()
 
 
-def _record(group, seed, occ, tseed, base_d, cand_d, swaps=(0, 0)):
-    measures = {"cov": 1.0, "accel": 3.0}
+def _record(group, seed, occ, tseed, base_d, cand_d, swaps=(0, 0), accel=(3.0, 3.0)):
     return {
         "group": group, "seed": seed, "motion": "walk", "occ": occ, "tseed": tseed,
-        "default": {"D": base_d, "swaps": swaps[0], **measures},
-        "far1.0": {"D": cand_d, "swaps": swaps[1], **measures},
+        "default": {"D": base_d, "swaps": swaps[0], "cov": 1.0, "accel": accel[0]},
+        "far1.0": {"D": cand_d, "swaps": swaps[1], "cov": 0.9, "accel": accel[1]},
     }  # fmt: skip
 
 
@@ -250,8 +249,8 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
     paired = load("paired")
     records = [
         # run A: seed 0 gains 30 mm, seed 1 loses 10 -> change -10; baseline spread sd(100, 60)
-        _record("standard", 168, 0, 0, 100.0, 70.0, (2, 1)),
-        _record("standard", 168, 0, 1, 60.0, 70.0, (0, 3)),
+        _record("standard", 168, 0, 0, 100.0, 70.0, (2, 1), (3.0, 5.0)),
+        _record("standard", 168, 0, 1, 60.0, 70.0, (0, 3), (4.0, 4.0)),
         # run B: no change on either seed
         _record("standard", 169, 0, 0, 40.0, 40.0),
         _record("standard", 169, 0, 1, 40.0, 40.0),
@@ -267,6 +266,9 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
     assert by[168, 0]["base_D"] == pytest.approx(80.0) and by[168, 0]["candidate_D"] == 70.0
     assert by[168, 0]["spread"] == pytest.approx(np.std([100.0, 60.0], ddof=1))
     assert (by[168, 0]["base_swaps"], by[168, 0]["candidate_swaps"]) == (2, 4)
+    # acceleration error and coverage: each variant's mean over the run's tracker seeds
+    assert (by[168, 0]["base_accel"], by[168, 0]["candidate_accel"]) == (3.5, 4.5)
+    assert (by[168, 0]["base_cov"], by[168, 0]["candidate_cov"]) == (1.0, 0.9)
     rows = dict(paired.table(runs))
     assert list(rows) == ["standard, clean", "standard, occlusion 2", "all"]
     clean = rows["standard, clean"]
@@ -277,6 +279,8 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
     every = rows["all"]
     assert every["change"] == pytest.approx((-10.0 + 0.0 + 2.0) / 3)
     assert (every["base_swaps"], every["candidate_swaps"]) == (2, 4)
+    assert every["base_accel"] == pytest.approx((3.5 + 3.0 + 3.0) / 3)
+    assert every["candidate_accel"] == pytest.approx((4.5 + 3.0 + 3.0) / 3)
 
 
 def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
