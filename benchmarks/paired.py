@@ -109,7 +109,8 @@ def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
             "change": float((c - b).mean()), "spread": float(b.std(ddof=1)) if len(b) > 1 else 0.0,
             "base_swaps": sum(by_seed[t][base]["swaps"] for t in full),
             "candidate_swaps": sum(by_seed[t][candidate]["swaps"] for t in full),
-            **{f"{role}_{m}": float(np.mean([by_seed[t][name][m] for t in full]))
+            # (nan where a record predates the measure)
+            **{f"{role}_{m}": float(np.mean([by_seed[t][name].get(m, math.nan) for t in full]))
                for role, name in (("base", base), ("candidate", candidate))
                for m in ("accel", "cov")},
         })  # fmt: skip
