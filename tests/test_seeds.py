@@ -283,6 +283,16 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
     assert every["candidate_accel"] == pytest.approx((4.5 + 3.0 + 3.0) / 3)
 
 
+def test_the_paired_change_reads_a_missing_acceleration_as_nan():
+    # records written before the acceleration error was recorded still join; their mean is nan
+    paired = load("paired")
+    old = _record("standard", 168, 0, 0, 50.0, 40.0)
+    del old["default"]["accel"]
+    (run,) = paired.run_changes([old], "default", "far1.0")
+    assert np.isnan(run["base_accel"]) and run["candidate_accel"] == 3.0
+    assert run["change"] == -10.0
+
+
 def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
     paired = load("paired")
     twice = _write(tmp_path / "twice.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)] * 2)
