@@ -20,6 +20,15 @@ Tuning seeds only: never point it at ``REPORT_SEEDS``.
     python benchmarks/decide.py OUT.jsonl --real-seeds 176,178 --standard-seeds 168-170 \
         --procedural-seeds 171-173 --side-seeds 196,197 --tracker-seeds 0,1,2 ...
     python benchmarks/decide.py OUT.jsonl --mode per-frame --variants default,alllm,lvm
+    python benchmarks/decide.py OUT.jsonl --cmu-late-seeds 1346-1351 --no-base ...
+
+CMU motion (``--cmu-late-seeds``): the report sets' real-motion clips include the shared
+data's three CMU recordings (subject 131), from their start (``motion_start`` 0: the first
+4 s at 30 fps), and ``tune.REAL`` has no clip of that kind. The ``cmu late`` group tracks the
+same three recordings from :data:`CMU_LATE_START` on (4.2 s: after every frame a report clip
+shows), so a change can be tried on that kind of motion without looking at a report clip. It
+is the same person, session and style as the report clips (the stretches do not overlap, the
+motion does in kind): read a result there as a tuning hint, not as independent evidence.
 
 Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
@@ -80,6 +89,7 @@ def clips(
     base: bool = True,
     procedural_seeds: list[int] | None = None,
     standard_seeds: list[int] | None = None,
+    cmu_late_seeds: list[int] | None = None,
 ) -> list[tuple[str, int, str, str]]:
     """``(group, seed, motion, variety)`` of the 20 decision clips (each at 2 occlusions).
 
@@ -89,7 +99,7 @@ def clips(
     the clips of those tuning seeds instead, in that order; ``side_seeds`` adds wide
     procedural ``walk_across`` clips of those tuning seeds (a side view walking across the
     room and turning round, a motion the 40 clips do not have); ``base=False``: not the 20
-    decision clips (the seeds given only)."""
+    decision clips (the seeds given only); ``cmu_late_seeds`` adds :func:`cmu_late` clips."""
     own = {
         "--real-seeds": real_seeds,
         "--procedural-seeds": procedural_seeds,
@@ -110,7 +120,34 @@ def clips(
     if side_seeds is not None:
         _check(side_seeds, "--side-seeds")
         out += [("walk_across", s, "walk_across", "wide") for s in side_seeds]
+    if cmu_late_seeds is not None:
+        _check(cmu_late_seeds, "--cmu-late-seeds")
+        out += [cmu_late(s) for s in cmu_late_seeds]
     return out
+
+
+#: The shared data's CMU recordings (subject 131), as ``accuracy.REAL`` names them.
+CMU = ("cmu:131_01", "cmu:131_02", "cmu:131_03")
+#: Where the ``cmu late`` clips start in their recording, s: after the last frame a report
+#: clip shows (120 frames at 30 fps from 0 s: up to 3.97 s); 131_01, the shortest (8.28 s),
+#: still holds 120 frames from here without playing back.
+CMU_LATE_START = 4.2
+
+
+def cmu_late(seed: int) -> tuple[str, int, str, str]:
+    """The ``cmu late`` clip of a tuning seed: recording ``CMU[seed % 3]`` from
+    :data:`CMU_LATE_START` (the motion ``"cmu:131_0N@4.2"``, :func:`split_start`), on the
+    wide body for even seeds and the standard one for odd (six seeds in a row cover every
+    recording on both bodies, as the report sets' ``real`` and ``real-wide``)."""
+    motion = f"{CMU[seed % len(CMU)]}@{CMU_LATE_START}"
+    return "cmu late", seed, motion, ("wide", "standard")[seed % 2]
+
+
+def split_start(motion: str) -> tuple[str, float]:
+    """``(motion, motion_start)`` of a clip's motion name: ``"cmu:131_01@4.2"`` is
+    ``cmu:131_01`` from 4.2 s; a name without ``@`` starts at 0."""
+    name, at, start = motion.partition("@")
+    return name, float(start) if at else 0.0
 
 
 def _check(seeds: list[int], option: str) -> None:
@@ -267,9 +304,10 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     online, the motion model's median ms a frame."""
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
+            name, start = split_start(motion)
             seq = pt.synth.generate(
-                seed, motion=motion, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-                height=240, with_rgb=False, variety=variety,
+                seed, motion=name, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
+                height=240, with_rgb=False, variety=variety, motion_start=start,
             )  # fmt: skip
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
             for name, kwargs in variants.items():
@@ -315,16 +353,24 @@ def main() -> int:
         "--side-seeds", help="add wide walk_across clips (a side view) of these tuning seeds"
     )
     ap.add_argument(
-        "--no-base", action="store_true", help="only the --side-seeds clips, not the 40"
+        "--cmu-late-seeds",
+        help="add CMU subject 131 clips from 4.2 s on (after the report clips' stretch)",
     )
+    ap.add_argument("--no-base", action="store_true", help="only the added clips, not the 40")
     a = ap.parse_args()
-    if a.no_base and a.side_seeds is None:
-        ap.error("--no-base leaves only the --side-seeds clips: give --side-seeds")
-    side, real, procedural, standard = (
+    if a.no_base and a.side_seeds is None and a.cmu_late_seeds is None:
+        ap.error("--no-base leaves only the added clips: give --side-seeds or --cmu-late-seeds")
+    side, real, procedural, standard, cmu = (
         None if text is None else parse_seeds(text)
-        for text in (a.side_seeds, a.real_seeds, a.procedural_seeds, a.standard_seeds)
+        for text in (
+            a.side_seeds,
+            a.real_seeds,
+            a.procedural_seeds,
+            a.standard_seeds,
+            a.cmu_late_seeds,
+        )
     )
-    chosen = clips(real, side, not a.no_base, procedural, standard)
+    chosen = clips(real, side, not a.no_base, procedural, standard, cmu)
     variants = {v: settings(v, a.mode) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
     todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]

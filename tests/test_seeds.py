@@ -83,6 +83,34 @@ def test_tuning_clips_are_not_the_reported_clips():
     assert not set(tune.REAL) & set(accuracy.REAL)
 
 
+def test_the_late_cmu_clips_start_after_the_report_clips_end(seeds):
+    """``decide.py --cmu-late-seeds``: the report sets' CMU recordings, from after the last
+    frame any report clip shows, on tuning seeds only, without playing back."""
+    decide = load("decide")
+    late = decide.clips(None, None, False, None, None, list(range(1346, 1352)))
+    assert {(c[2], c[3]) for c in late} == {
+        (f"{m}@{decide.CMU_LATE_START}", v) for m in decide.CMU for v in ("wide", "standard")
+    }
+    assert all(c[0] == "cmu late" and c[1] in seeds.TUNING_SEEDS for c in late)
+    assert decide.split_start(late[0][2]) == (decide.CMU[1346 % 3], decide.CMU_LATE_START)
+    assert decide.split_start("cmu:131_01") == ("cmu:131_01", 0.0)
+    # The report clips: 120 frames at 30 fps from 0 s (motion.run_clip and decide.track).
+    assert decide.CMU_LATE_START > 119 / 30.0
+    assert set(decide.CMU) <= set(load("accuracy").REAL)
+    with pytest.raises(SystemExit, match="--cmu-late-seeds.*not tuning seeds"):
+        decide.clips(None, None, False, None, None, [7])
+    available = set(pt.synth.list_real_motions())
+    if not set(decide.CMU) <= available:
+        pytest.skip("the CMU recordings are not in $POSETRACK_DATA or ../shared/data")
+    from posetrack.synth._mocap import real_motion
+    from posetrack.synth._skeleton import sample_subject
+
+    subject = sample_subject(np.random.default_rng(0))
+    for name in decide.CMU:  # 120 frames from the late start, none played back
+        clip = real_motion(name, subject, n_frames=120, fps=30.0, start=decide.CMU_LATE_START)
+        assert clip.info["looped"] is False, name
+
+
 def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     decide = load("decide")
     used = [seed for _, seed, _, _ in decide.clips()]
