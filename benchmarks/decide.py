@@ -304,9 +304,9 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     online, the motion model's median ms a frame."""
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
-            name, start = split_start(motion)
+            recording, start = split_start(motion)
             seq = pt.synth.generate(
-                seed, motion=name, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
+                seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
                 height=240, with_rgb=False, variety=variety, motion_start=start,
             )  # fmt: skip
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
