@@ -77,6 +77,7 @@ import json
 import time
 
 import numpy as np
+from accuracy import REAL as REPORTED_REAL  # the reported real clips (CMU: the late group)
 from seeds import TUNING_SEEDS, parse_seeds
 from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion
 
@@ -126,8 +127,8 @@ def clips(
     return out
 
 
-#: The shared data's CMU recordings (subject 131), as ``accuracy.REAL`` names them.
-CMU = ("cmu:131_01", "cmu:131_02", "cmu:131_03")
+#: The report sets' CMU recordings (the shared data's subject 131), read from ``accuracy.REAL``.
+CMU = tuple(m for m in REPORTED_REAL if m.startswith("cmu:"))
 #: Where the ``cmu late`` clips start in their recording, s: after the last frame a report
 #: clip shows (120 frames at 30 fps from 0 s: up to 3.97 s); 131_01, the shortest (8.28 s),
 #: still holds 120 frames from here without playing back.
