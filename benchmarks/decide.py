@@ -49,6 +49,7 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
 (``TrackerConfig(lift_band=M)``, metres), ``agreeX`` (``TrackerConfig(lost_agreement=X)``),
+``followX`` (``FollowSettings(depth_band=X)``, metres),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
@@ -185,6 +186,7 @@ _NUMBERED = {
     "far": ("config", pt.TrackerConfig, "depth_confidence_far"),
     "band": ("config", pt.TrackerConfig, "lift_band"),
     "agree": ("config", pt.TrackerConfig, "lost_agreement"),
+    "follow": ("follow", pt.FollowSettings, "depth_band"),
 }
 
 
@@ -286,6 +288,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
+        "'agreeX', 'followX', "
         "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r|g]' (N >= 10), "
         "'gateX', 'sides:G+G...'"
     )

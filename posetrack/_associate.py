@@ -110,6 +110,26 @@ class FollowSettings:
     """Keypoints at or below this confidence are ignored (as the tracker's lifting does)."""
     mask_others: bool = True
     """Remove the other detected people's pixels from the depth the tracker fits and scores."""
+    depth_band: float = 0.0
+    """> 0 (metres): the reference follows the whole body. A detection's keypoint lifted
+    further than this from its median lifted depth is read as having missed the body (a
+    keypoint a few pixels off a thin limb reads the wall behind it; :func:`plausible_depth`):
+    it is compared in 2D only (:func:`match_costs`) and never enters the reference; and once
+    a detection is accepted, every keypoint it lifts within the band replaces its reference
+    (:meth:`PersonFollower.observe`), not only those within the gate of their old place.
+    0 (the shipped behaviour): the reference takes any lifted keypoint, and afterwards only
+    those within the gate. There, a keypoint lifted onto the wall once stays in the
+    reference (later, correct liftings lie far from it, so they never replace it), as does a
+    limb that swung further than the gate; with a few such keypoints the median cost of the
+    only person in view outgrows the widening gate and the track is never re-acquired (a
+    diagnosis of 2026-12-04 on a tuning clip: 45 of 120 frames lost; benchmarks/README.md,
+    "The follower's reference"). :data:`PLAUSIBLE_DEPTH_BAND` (0.4) is the candidate value,
+    opt-in until decided. Not in the paper."""
+
+    def __post_init__(self):
+        v = self.depth_band
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+            raise ValueError(f"FollowSettings.depth_band must be >= 0 metres, got {v!r}")
 
     def gate_after(self, unseen: int) -> float:
         """The gate (m) after ``unseen`` consecutive frames without the tracked person."""
@@ -268,8 +288,30 @@ def choose_person(cands: Candidates, rule: PersonRule = "auto", *, min_keypoints
     )
 
 
+def plausible_depth(points3d: np.ndarray, has_depth: np.ndarray, band: float) -> np.ndarray:
+    """``has_depth`` less the keypoints lifted more than ``band`` metres from their person's
+    median lifted depth (``band`` 0: ``has_depth`` unchanged).
+
+    Args:
+        points3d: ``(..., 18, 3)``. has_depth: ``(..., 18)``. band: metres.
+
+    Returns:
+        ``bool (..., 18)``.
+    """
+    f = np.asarray(has_depth, bool)
+    if band <= 0:
+        return f
+    z = np.where(f, np.asarray(points3d, np.float64)[..., 2], np.nan)
+    return f & (np.abs(z - quiet_nanmedian(z, axis=-1)[..., None]) <= band)
+
+
 def match_costs(
-    cands: Candidates, reference3d: np.ndarray, intrinsics: Intrinsics, *, min_keypoints: int = 3
+    cands: Candidates,
+    reference3d: np.ndarray,
+    intrinsics: Intrinsics,
+    *,
+    min_keypoints: int = 3,
+    depth_band: float = 0.0,
 ) -> np.ndarray:
     """How far each detection is from the tracked person, metres (``inf`` if not comparable).
 
@@ -291,6 +333,8 @@ def match_costs(
             keypoints of its last detection; NaN rows ignored.
         intrinsics: the depth camera.
         min_keypoints: fewer comparable keypoints give ``inf``.
+        depth_band: > 0: a detection's keypoints lifted further than this from its median
+            lifted depth are compared in 2D (:func:`plausible_depth`).
 
     Returns:
         ``(P,)`` costs, m.
@@ -303,12 +347,13 @@ def match_costs(
     uv = np.stack([fx * ref[:, 0] / z + cx, fy * ref[:, 1] / z + cy], axis=-1)
     d3 = np.linalg.norm(cands.points3d - np.where(ref_ok[:, None], ref, 0.0)[None], axis=-1)
     d2 = np.linalg.norm(cands.keypoints2d - uv[None], axis=-1) * z[None] / (0.5 * (fx + fy))
-    d = np.where(cands.has_depth, d3, d2)
+    has_depth = plausible_depth(cands.points3d, cands.has_depth, depth_band)
+    d = np.where(has_depth, d3, d2)
     usable = cands.detected & ref_ok[None]
     cost = quiet_nanmedian(np.where(usable, d, np.nan), axis=1)
     # The body as a whole: where its keypoints lie in the image, and its median depth.
     lateral = quiet_nanmedian(np.where(usable, d2, np.nan), axis=1)
-    both = usable & cands.has_depth
+    both = usable & has_depth
     z_cand = quiet_nanmedian(np.where(both, cands.points3d[..., 2], np.nan), axis=1)
     z_ref = quiet_nanmedian(np.where(both, ref[None, :, 2], np.nan), axis=1)
     body = np.hypot(lateral, np.where(both.sum(axis=1) >= min_keypoints, z_cand - z_ref, np.nan))
@@ -462,7 +507,10 @@ class PersonFollower:
         fs = self.settings
         if self.reference is None:
             return choose_person(cands, self.rule, min_keypoints=fs.min_keypoints)
-        cost = match_costs(cands, self.reference, self.intrinsics, min_keypoints=fs.min_keypoints)
+        cost = match_costs(
+            cands, self.reference, self.intrinsics, min_keypoints=fs.min_keypoints,
+            depth_band=fs.depth_band,
+        )  # fmt: skip
         ok = cost < fs.gate_after(self.since)
         signature = self.signature()
         if reacquiring and signature is not None and ok.any():
@@ -483,12 +531,17 @@ class PersonFollower:
         the gate off the person. But a keypoint of a half-hidden person is often lifted onto
         whoever hides it and must not drag the reference onto that person. So only keypoints
         within the gate of their reference position update it; the others (and those never
-        measured) move with the median displacement of the consistent ones.
+        measured) move with the median displacement of the consistent ones. With
+        :attr:`FollowSettings.depth_band`, a keypoint lifted off the person's median depth
+        is not seen at all (:func:`plausible_depth`), and every keypoint seen replaces its
+        reference once enough are consistent.
         """
         self.since += 1
         if p < 0:
             return
-        lifted = np.where(cands.has_depth[p][:, None], cands.points3d[p], np.nan)
+        band = (self.settings or FollowSettings()).depth_band
+        seen_depth = plausible_depth(cands.points3d[p], cands.has_depth[p], band)
+        lifted = np.where(seen_depth[:, None], cands.points3d[p], np.nan)
         seen = np.isfinite(lifted).all(axis=1)
         if self.reference is None:
             if seen.sum() >= self.min_keypoints:
@@ -503,7 +556,8 @@ class PersonFollower:
         if consistent.sum() < self.min_keypoints:
             return  # nothing trustworthy seen: the gate keeps widening
         shift = np.median(lifted[consistent] - ref[consistent], axis=0)
-        self.reference = np.where((consistent | (seen & ~known))[:, None], lifted, ref + shift)
+        update = seen if band > 0 else consistent | (seen & ~known)
+        self.reference = np.where(update[:, None], lifted, ref + shift)
         self.since = 0
 
     def tracked(self, cands: Candidates, p: int) -> None:
