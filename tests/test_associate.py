@@ -12,6 +12,7 @@ import posetrack as pt
 from posetrack._associate import (
     SEGMENTS,
     Candidates,
+    PersonFollower,
     other_people_mask,
     quiet_nanmedian,
     segment_lengths,
@@ -254,3 +255,48 @@ def test_segment_lengths_skip_keypoints_lifted_off_the_body():
     loose = segment_lengths(_onto_wall(person, np.array([4, 7]), 4.8), np.ones(18, bool),
                             depth_band=2.0)  # fmt: skip
     assert np.isfinite(loose).all() and (loose.max() > 0.6)
+
+
+def _only(c: Candidates, keep: list[int]) -> Candidates:
+    """``c`` with only the keypoints ``keep`` detected (a half-occluded person)."""
+    det = np.zeros_like(c.detected)
+    det[:, keep] = True
+    return Candidates(
+        keypoints2d=c.keypoints2d, confidence=np.where(det, c.confidence, 0.0),
+        points3d=np.where(det[..., None], c.points3d, 0.0), detected=det, has_depth=det.copy(),
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("band", [0.0, 0.4])
+def test_the_followers_reference_stays_on_the_body_with_a_depth_band(band):
+    # The first frame lifts the left wrists, elbow, knee and ankle onto the wall 2.3 m behind;
+    # the next shows the person, half occluded, in the same place, every keypoint on the body.
+    person = _person_at(0.0, 2.5)
+    left = np.array([6, 7, 12, 13])
+    follower = PersonFollower(pt.FollowSettings(depth_band=band), "auto", INTR)
+    first = _lifted(_onto_wall(person, left, 4.8)[None])
+    follower.observe(first, follower.select(first))
+    assert follower.reference is not None
+    # Without the band the wall points enter the reference (the shipped behaviour) ...
+    assert np.isnan(follower.reference[left]).all() == (band > 0)
+    later = _only(_lifted(person[None]), [2, 3, 6, 7, 9, 12, 13])
+    # ... and the only person in view is then rejected; with it, followed.
+    assert follower.select(later) == (0 if band > 0 else -1)
+
+
+def test_with_a_depth_band_an_accepted_detection_replaces_a_swung_limb():
+    person = _person_at(0.0, 2.5)
+    swung = person.copy()
+    swung[[6, 7]] += np.array([0.5, 0.0, 0.0])  # the left arm swung 0.5 m, beyond the gate
+    for band, replaced in ((0.0, False), (0.4, True)):
+        follower = PersonFollower(pt.FollowSettings(depth_band=band), "auto", INTR)
+        follower.observe(c := _lifted(person[None]), follower.select(c))
+        follower.observe(c := _lifted(swung[None]), follower.select(c))
+        assert follower.since == 0  # accepted
+        on_new = np.allclose(follower.reference[[6, 7]], swung[[6, 7]])
+        assert on_new == replaced
+
+
+def test_follow_settings_reject_a_negative_depth_band():
+    with pytest.raises(ValueError, match="depth_band"):
+        pt.FollowSettings(depth_band=-0.1)
