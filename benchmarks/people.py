@@ -27,6 +27,7 @@ Prints the table and writes ``people.json`` into ``--out`` (default ``benchmarks
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -52,8 +53,10 @@ def scene_result(
     size: tuple[int, int],
     ablate: bool = False,
     config: pt.TrackerConfig | None = None,
+    follow: pt.FollowSettings | None = None,
 ) -> dict:
-    """Track one scene three ways; identity jumps and D of each."""
+    """Track one scene three ways; identity jumps and D of each. ``follow``: the follower's
+    settings in the follow and alone runs (default ``FollowSettings()``)."""
     w, h = size
     kw = dict(motion=motion, n_frames=frames, width=w, height=h, with_rgb=False,
               occlusion_level=level)  # fmt: skip
@@ -61,19 +64,20 @@ def scene_result(
     alone = pt.synth.generate(seed, **kw)
     truth = np.concatenate([seq.joints3d[:, None], seq.others_joints3d], axis=1)
     config = config or pt.TrackerConfig()
+    follow = follow or pt.FollowSettings()
     out: dict = {"seed": seed, "motion": motion, "level": level, "frames": frames}
     runs = {
-        "follow": (seq.people2d, seq.people_confidence, pt.FollowSettings(), seq.joints3d),
+        "follow": (seq.people2d, seq.people_confidence, follow, seq.joints3d),
         "per-frame": (seq.people2d, seq.people_confidence, None, seq.joints3d),
-        "alone": (alone.keypoints2d, alone.confidence, pt.FollowSettings(), alone.joints3d),
+        "alone": (alone.keypoints2d, alone.confidence, follow, alone.joints3d),
     }
     if ablate:  # the other people's pixels left in the depth the tracker fits
-        no_mask = pt.FollowSettings(mask_others=False)
+        no_mask = dataclasses.replace(follow, mask_others=False)
         runs["follow, no mask"] = (seq.people2d, seq.people_confidence, no_mask, seq.joints3d)
-    for name, (kp, conf, follow, gt) in runs.items():
+    for name, (kp, conf, follower, gt) in runs.items():
         t0 = time.perf_counter()
         res = pt.track(seq.depth if name != "alone" else alone.depth, kp, conf,
-                       seq.intrinsics, config, follow=follow, mode="per-frame")  # fmt: skip
+                       seq.intrinsics, config, follow=follower, mode="per-frame")  # fmt: skip
         acc = pt.accuracy(res.keypoints3d, gt)
         ident = pt.followed_identity(res.keypoints3d, truth)
         out[name] = {
@@ -142,11 +146,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--lost-agreement", type=float, help="TrackerConfig.lost_agreement (default: shipped)"
     )
+    ap.add_argument(
+        "--follow-band", type=float, help="FollowSettings.depth_band, m (default: shipped)"
+    )
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = ap.parse_args(argv)
     config = pt.TrackerConfig()
     if args.lost_agreement is not None:
         config = pt.TrackerConfig(lost_agreement=args.lost_agreement)
+    follow = None if args.follow_band is None else pt.FollowSettings(depth_band=args.follow_band)
     n = 4 if args.quick else args.scenes
     seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[args.start : args.start + n]
     print(machine_summary(), file=sys.stderr)
@@ -155,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         k = args.start + i  # the motion and level follow the seed's place in its range
         motion, level = MOTIONS[k % len(MOTIONS)], LEVELS[k % len(LEVELS)]
         scenes.append(
-            scene_result(seed, motion, level, args.frames, (320, 240), args.ablate, config)
+            scene_result(seed, motion, level, args.frames, (320, 240), args.ablate, config, follow)
         )
         s = scenes[-1]
         print(f"[{i + 1}/{n}] seed {seed} {motion}: follow {s['follow']['jumps']} jumps "
@@ -170,9 +178,12 @@ def main(argv: list[str] | None = None) -> int:
     name += f"_from{args.start}" if args.start else ""
     if args.lost_agreement is not None:
         name += f"_agree{args.lost_agreement:g}"
+    if args.follow_band is not None:
+        name += f"_follow{args.follow_band:g}"
     doc = {"machine": machine_summary(), "seeds": seeds, "summary": summary, "scenes": scenes,
            "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)" if args.lost_agreement
-           is None else f"TrackerConfig(lost_agreement={args.lost_agreement:g})"}  # fmt: skip
+           is None else f"TrackerConfig(lost_agreement={args.lost_agreement:g})",
+           "follow": repr(follow or pt.FollowSettings())}  # fmt: skip
     tmp = out / f".{name}.json.tmp"
     tmp.write_text(json.dumps(doc, indent=1))
     tmp.replace(out / f"{name}.json")
