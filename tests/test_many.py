@@ -87,8 +87,13 @@ def test_track_many_shape_prepass_steps_in_its_slot_and_counts_its_frames(seqs):
     pre-pass's chunks are batched in the sequence's own slot (which stays held for the
     recording's pass after it), each sequence gets what it gets alone up to float rounding,
     and the progress counts the pre-pass's frames too. Two refinements (Adam on the shape)
-    carry the rounding further than the steps alone do: measured, the shapes within 1.1 mm,
-    keypoints within 7.5 mm, D within 0.3 mm."""
+    carry the rounding further than the steps alone do: measured on a 2-core Intel Xeon, the
+    shapes within 1.1 mm, keypoints within 7.5 mm, D within 0.3 mm; on a 2-core AMD EPYC
+    (2026-12-04) the shapes within 1.5 mm, and in one sequence a 1.5 mm shape difference
+    took the MHT's random walk elsewhere (per-frame keypoints 119 mm apart, the smoothed
+    output 57 mm in one keypoint) with D within 0.6 mm. So the keypoints are compared by
+    their median difference (a slot mixed up with another recording's is decimetres off
+    everywhere) and a bound on the largest, not element by element."""
     refine = pt.ShapeFitSettings.tracking("offline")  # 8 frames: a pre-pass of 8 of the 10
     opts = dict(refine=dataclasses.replace(refine, offline_first=T - 2))
     inputs = [(s.intrinsics, s.depth, s.keypoints2d, s.confidence) for s in seqs]
@@ -100,7 +105,9 @@ def test_track_many_shape_prepass_steps_in_its_slot_and_counts_its_frames(seqs):
         alone = tr.run(s.depth, s.keypoints2d, s.confidence)
         assert tr.refine_report["offline_first"] is not None
         np.testing.assert_array_equal(r.status, alone.status)
-        np.testing.assert_allclose(r.keypoints3d, alone.keypoints3d, atol=0.02)
+        diff = np.abs(r.keypoints3d - alone.keypoints3d)
+        assert np.nanmedian(diff) < 0.005 and np.nanmax(diff) < 0.1, (
+            np.nanmedian(diff), np.nanmax(diff))  # fmt: skip
         d_many = np.nanmean(np.linalg.norm(r.keypoints3d - s.joints3d, axis=-1))
         d_alone = np.nanmean(np.linalg.norm(alone.keypoints3d - s.joints3d, axis=-1))
         assert abs(d_many - d_alone) < 1e-3, (d_many, d_alone)
