@@ -377,9 +377,7 @@ def segment_lengths(
     """
     a, b = (np.array(i) for i in zip(*SEGMENTS))
     p = np.asarray(points3d, np.float64)
-    f = np.asarray(has_depth, bool)
-    z = np.where(f, p[..., 2], np.nan)
-    f = f & (np.abs(z - quiet_nanmedian(z, axis=-1)[..., None]) <= depth_band)
+    f = plausible_depth(p, has_depth, depth_band)
     length = np.linalg.norm(p[..., a, :] - p[..., b, :], axis=-1)
     return np.where(f[..., a] & f[..., b], length, np.nan)
 
@@ -539,8 +537,8 @@ class PersonFollower:
         self.since += 1
         if p < 0:
             return
-        band = (self.settings or FollowSettings()).depth_band
-        seen_depth = plausible_depth(cands.points3d[p], cands.has_depth[p], band)
+        fs = self.settings or FollowSettings()
+        seen_depth = plausible_depth(cands.points3d[p], cands.has_depth[p], fs.depth_band)
         lifted = np.where(seen_depth[:, None], cands.points3d[p], np.nan)
         seen = np.isfinite(lifted).all(axis=1)
         if self.reference is None:
@@ -551,12 +549,12 @@ class PersonFollower:
         known = np.isfinite(ref).all(axis=1)
         both = seen & known
         dist = np.linalg.norm(np.where(both[:, None], lifted - ref, 0.0), axis=1)
-        gate = (self.settings or FollowSettings()).gate_after(self.since)
+        gate = fs.gate_after(self.since)
         consistent = both & (dist < gate)
         if consistent.sum() < self.min_keypoints:
             return  # nothing trustworthy seen: the gate keeps widening
         shift = np.median(lifted[consistent] - ref[consistent], axis=0)
-        update = seen if band > 0 else consistent | (seen & ~known)
+        update = seen if fs.depth_band > 0 else consistent | (seen & ~known)
         self.reference = np.where(update[:, None], lifted, ref + shift)
         self.since = 0
 
