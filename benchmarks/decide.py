@@ -79,6 +79,7 @@ import time
 
 import numpy as np
 from accuracy import REAL as REPORTED_REAL  # the reported real clips (CMU: the late group)
+from parts import add_part_arguments, check_part, share
 from seeds import TUNING_SEEDS, parse_seeds
 from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion
 
@@ -344,8 +345,7 @@ def main() -> int:
     ap.add_argument("--variants", default="kept,settle1")
     ap.add_argument("--mode", choices=("offline", "online", "per-frame"), default="offline")
     ap.add_argument("--tracker-seeds", default="0,1")
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
+    add_part_arguments(ap)
     ap.add_argument(
         "--real-seeds", help="instead of the 40 clips: wide real motion clips, e.g. 100-123"
     )
@@ -362,6 +362,7 @@ def main() -> int:
     )
     ap.add_argument("--no-base", action="store_true", help="only the added clips, not the 40")
     a = ap.parse_args()
+    check_part(ap, a)
     if a.no_base and a.side_seeds is None and a.cmu_late_seeds is None:
         ap.error("--no-base leaves only the added clips: give --side-seeds or --cmu-late-seeds")
     side, real, procedural, standard, cmu = (
@@ -377,7 +378,7 @@ def main() -> int:
     chosen = clips(real, side, not a.no_base, procedural, standard, cmu)
     variants = {v: settings(v, a.mode) for v in a.variants.split(",")}
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
-    todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]
+    todo = share([(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds], a)
     track(todo, variants, a.mode, a.out)
     return 0
 

@@ -32,6 +32,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from parts import add_part_arguments, check_part, share
 from seeds import TUNING_SEEDS, TUNING_TEXT, parse_seeds
 from tune import real_motion
 
@@ -100,8 +101,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", default="158-181", help="tuning seeds, e.g. 158-181")
     ap.add_argument("--occlusion", type=int, default=0)
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
+    add_part_arguments(ap)
     ap.add_argument(
         "--keep", type=int, default=15, help="reinit_keep_facing of the second configuration"
     )
@@ -114,6 +114,7 @@ def main() -> int:
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "facing.json"))
     a = ap.parse_args()
+    check_part(ap, a)
     if a.merge:
         runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     else:
@@ -121,7 +122,7 @@ def main() -> int:
         if not all(s in TUNING_SEEDS for s in seeds):
             ap.error(f"--seeds: tuning seeds only ({TUNING_TEXT})")
         runs, t0 = [], time.perf_counter()
-        for seed in seeds[a.part :: a.parts]:
+        for seed in share(seeds, a):
             for run in track_clip(seed, a.occlusion, a.keep, a.neck):
                 runs.append(run)
                 print(f"[{time.perf_counter() - t0:5.0f}s] {json.dumps(run)}", file=sys.stderr)

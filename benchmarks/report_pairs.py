@@ -29,6 +29,7 @@ import json
 from decide import settings, track
 from motion import report_clips
 from paired import join
+from parts import add_part_arguments, check_part, share
 
 #: ``--set``: (``posetrack.synth`` variety, ``motion.py --motions``) of each report set.
 SETS = {
@@ -84,9 +85,9 @@ def main() -> int:
         "--stored", action="append", default=[],
         help="VARIANT=FILE:ROW: that variant's tracker-seed-0 rows from a motion.py result",
     )  # fmt: skip
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
+    add_part_arguments(ap)
     a = ap.parse_args()
+    check_part(ap, a)
     variety, motions = SETS[a.set]
     try:
         clips = report_clips(12, 0, motions)
@@ -98,8 +99,8 @@ def main() -> int:
         ap.error("nothing to do: give --variants to track or --stored rows to read")
     stored = join([(r, spec) for spec in a.stored for r in stored_records(spec, clips, group)])
     seeds = [int(s) for s in a.tracker_seeds.split(",")] if variants else []
-    todo = [((group, seed, motion, variety), occ, ts) for seed, motion in clips
-            for occ in (0, 2) for ts in seeds][a.part :: a.parts]  # fmt: skip
+    todo = share([((group, seed, motion, variety), occ, ts) for seed, motion in clips
+                  for occ in (0, 2) for ts in seeds], a)  # fmt: skip
     with open(a.out, "a") as f:
         f.writelines(json.dumps(rec) + "\n" for rec in stored)
     track(todo, variants, a.mode, a.out)

@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from decide import clips, settings
+from parts import add_part_arguments, check_part, share
 from seeds import parse_seeds
 from tune import decision_measures
 
@@ -162,7 +163,7 @@ def run(a) -> None:
     )
     chosen = clips(real, side, False, procedural, standard)
     seeds = [int(s) for s in a.tracker_seeds.split(",")]
-    todo = [(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds][a.part :: a.parts]
+    todo = share([(c, occ, ts) for c in chosen for occ in (0, 2) for ts in seeds], a)
     kwargs = settings("default", "offline")
     with open(a.out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
@@ -287,13 +288,13 @@ def main() -> int:
     r.add_argument("--procedural-seeds")
     r.add_argument("--standard-seeds")
     r.add_argument("--side-seeds")
-    r.add_argument("--part", type=int, default=0)
-    r.add_argument("--parts", type=int, default=1)
+    add_part_arguments(r)
     s = sub.add_parser("summary")
     s.add_argument("files", nargs="+")
     s.add_argument("--json")
     a = ap.parse_args()
     if a.cmd == "run":
+        check_part(r, a)
         run(a)
         return 0
     return summary(a)

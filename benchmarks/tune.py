@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from parts import add_part_arguments, check_part, share
 from seeds import REPORT_SEEDS, TUNING_SEEDS, TUNING_TEXT, parse_seeds  # benchmarks/seeds.py
 
 import posetrack as pt
@@ -107,11 +108,11 @@ def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip) -> tuple:
     Returns ``(args, runs)``."""
     ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--seeds", default=seeds, help="wide real motion tuning seeds")
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
+    add_part_arguments(ap)
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / f"{benchmark}.json"))
     a = ap.parse_args()
+    check_part(ap, a)
     if a.merge:
         return a, [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     chosen = parse_seeds(a.seeds)
@@ -119,7 +120,7 @@ def diagnosis_runs(doc: str, seeds: str, benchmark: str, run_clip) -> tuple:
         check_seeds(chosen)
     except ValueError as e:
         ap.error(str(e))
-    todo = [(s, occ) for s in chosen for occ in (0, 2)][a.part :: a.parts]
+    todo = share([(s, occ) for s in chosen for occ in (0, 2)], a)
     runs, t0 = [], time.perf_counter()
     for i, (seed, occ) in enumerate(todo):
         seq = pt.synth.generate(

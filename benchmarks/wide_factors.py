@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from parts import add_part_arguments, check_part, share
 from seeds import TUNING_SEEDS
 from tune import REAL
 
@@ -104,14 +105,14 @@ def main() -> int:
         "--detector-parts", action="store_true",
         help="the wide clip with one group of detector errors put back at a time",
     )  # fmt: skip
-    ap.add_argument("--part", type=int, default=0)
-    ap.add_argument("--parts", type=int, default=1)
+    add_part_arguments(ap)
     ap.add_argument(
         "--forms", default=None, help="a subset of the forms, separated by ';' (names hold commas)"
     )
     ap.add_argument("--merge", nargs="*", default=None, help="JSON files of parts to merge")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "wide_factors.json"))
     a = ap.parse_args()
+    check_part(ap, a)
     assert all(s in TUNING_SEEDS for s in SEEDS)
     forms = DETECTOR_FORMS if a.detector_parts else FORMS
     if a.forms:
@@ -124,7 +125,7 @@ def main() -> int:
         runs = [r for f in a.merge for r in json.loads(Path(f).read_text())["runs"]]
     else:
         runs = []
-        todo = [(i, s, f) for i, s in enumerate(SEEDS) for f in forms][a.part :: a.parts]
+        todo = share([(i, s, f) for i, s in enumerate(SEEDS) for f in forms], a)
         t0 = time.perf_counter()
         for i, seed, form in todo:
             motion = REAL[i % len(REAL)]

@@ -464,3 +464,26 @@ def test_the_torso_oracle_keeps_to_tuning_seeds_and_replaces_only_the_radii(
     assert torso_only["thigh_radius"] == pytest.approx(0.08)
     assert every["thigh_radius"] == pytest.approx(0.12)
     assert every["head_radius"] == pytest.approx(1.5 * start.to_dict()["head_radius"])
+
+
+def test_benchmark_parts_share_every_run_once_and_refuse_a_part_out_of_range(capsys):
+    # --part/--parts divide a benchmark's runs between processes; parts count from 0, and
+    # "--part 1, --part 2 of --parts 2" once silently skipped the first run.
+    import argparse
+
+    parts = load("parts")
+    ap = argparse.ArgumentParser()
+    parts.add_part_arguments(ap)
+    runs = list(range(11))
+    for n in (1, 2, 3):
+        shares = []
+        for p in range(n):
+            a = ap.parse_args(["--part", str(p), "--parts", str(n)])
+            parts.check_part(ap, a)
+            shares += parts.share(runs, a)
+        assert sorted(shares) == runs
+    for bad in (["--part", "2", "--parts", "2"], ["--part", "-1"], ["--parts", "0"]):
+        with pytest.raises(SystemExit) as e:
+            parts.check_part(ap, ap.parse_args(bad))
+        assert e.value.code == 2
+    assert "count from 0" in capsys.readouterr().err
