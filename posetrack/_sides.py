@@ -186,6 +186,17 @@ class SideSettings:
     over the stretch is lower by more than :attr:`arbitrate_margin`; online the first
     :attr:`online_frames` frames of each exchange are (see the module docstring). False: the
     labelling is taken as read (the 2D evidence alone)."""
+    arbitrate_groups: bool = False
+    """Offline, with :attr:`arbitrate`: where more than one group was read exchanged in a
+    stretch, each of those groups' exchange is also tracked alone (the others as detected),
+    and of the readings that beat the detections as they are (:func:`prefer_exchanged`),
+    every group's exchange included, the one whose Delta summed is lowest is kept. A
+    stretch is otherwise decided for every group together, so one group's false readings
+    take down another's true one (on a tuning clip the legs' swap was read right while the
+    arms' and torso's scattered false readings made the exchanged reading lose the person;
+    benchmarks/README.md, "What the left/right undoing does on 1386") or ride along with it.
+    One more tracking of the stretch per group read exchanged. Opt-in, being decided. Not in
+    the paper."""
     arbitrate_after: int = 5
     """Frames after each exchanged stretch that its Delta comparison also covers (a wrong
     labelling leaves the limbs misplaced for a few frames after it ends)."""
@@ -257,7 +268,7 @@ class SideSettings:
         return cls(**changes)
 
     def __post_init__(self):
-        for name in ("arbitrate", "torso_with_limbs"):
+        for name in ("arbitrate", "arbitrate_groups", "torso_with_limbs"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(
                     f"SideSettings: {name} must be True or False, got {getattr(self, name)!r}"

@@ -784,6 +784,8 @@ class Tracker:
         # Offline with arbitration (SideSettings.arbitrate): True while a stretch is tracked
         # with the labels as detected.
         self._as_detected = False
+        # Offline, while one group's exchange is tracked alone (SideSettings.arbitrate_groups).
+        self._only_groups: np.ndarray | None = None
         # Online with arbitration: the groups the depth kept as detected (until the labeller
         # reads them as detected again), the groups this frame newly exchanged (or held
         # exchanged past online_rejudge frames since they were judged), and the stretch being
@@ -1020,7 +1022,8 @@ class Tracker:
         detected); elsewhere as detected when arbitrating, else the forward pass's."""
         persons, exchanged = self._two_sided
         if persons[self._run_frame] == p and not self._as_detected:
-            return exchanged[self._run_frame]
+            row = exchanged[self._run_frame]
+            return row if self._only_groups is None else row & self._only_groups
         return np.zeros_like(forward) if self.sides.arbitrate else forward
 
     @property
@@ -1486,6 +1489,7 @@ class Tracker:
             frames(progress, t, T)
         finally:
             self._two_sided, self._run_frame, self._as_detected = None, None, False
+            self._only_groups = None
         back = None
         if both_ways:
             back = self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
@@ -1832,8 +1836,16 @@ class Tracker:
         self._as_detected = True
         frames(progress, start, stop)
         self._as_detected = False
-        delta_as = out.delta[start:stop]
+        delta_as = out.delta[start:stop].copy()
         chosen = prefer_exchanged(delta_as, delta_ex, self.sides.arbitrate_margin)
+        if self.sides.arbitrate_groups and groups.sum() > 1:
+            # Every group's exchange alone too; the lowest Delta summed of those that beat the
+            # detections, the exchange of all of them included, is kept.
+            bar = np.nansum(delta_ex) if chosen else np.inf
+            best = self._arbitrate_groups(start, stop, out, kept, frames, before, groups,
+                                          delta_as, saved, kept_before, bar)  # fmt: skip
+            if best is not None:  # one group's exchange alone did best
+                chosen, groups, delta_ex, (after_ex, span_ex, kept_ex) = True, *best
         self.side_spans.append(
             (start, stop, float(np.nansum(delta_as)), float(np.nansum(delta_ex)), chosen)
         )
@@ -1844,6 +1856,43 @@ class Tracker:
             kept.clear()
             kept.update(kept_ex)
         return stop
+
+    def _arbitrate_groups(
+        self, start, stop, out: _RunOutputs, kept: dict, frames, before, groups, delta_as,
+        saved, kept_before, bar: float,
+    ):  # fmt: skip
+        """:attr:`SideSettings.arbitrate_groups`: the stretch ``[start, stop)`` tracked once
+        per group read exchanged, with only that group's exchange (from the same state
+        ``before``). Returns ``(groups, Delta per frame, (state, outputs, kept))`` of the group
+        whose Delta summed is lowest among those that beat the detections
+        (:func:`prefer_exchanged`) and ``bar`` (the exchange of every group's sum where that
+        beat them, else inf), or ``None``; the tracker is left as detected (its state, outputs
+        and ``kept`` as they were after the stretch tracked as detected)."""
+        after_as, span_as, kept_as = self._snapshot(), out.copy_span(start, stop), dict(kept)
+        best, best_sum = None, bar
+        for g in np.flatnonzero(groups):
+            only = np.zeros_like(groups)
+            only[g] = True
+            self._restore(before)
+            out.put_span(start, saved)
+            kept.clear()
+            kept.update(kept_before)
+            self._only_groups = only
+            try:
+                frames(None, start, stop)
+            finally:
+                self._only_groups = None
+            delta_g = out.delta[start:stop].copy()
+            total = float(np.nansum(delta_g))
+            wins = prefer_exchanged(delta_as, delta_g, self.sides.arbitrate_margin)
+            if wins and total < best_sum:
+                snap = (self._snapshot(), out.copy_span(start, stop), dict(kept))
+                best, best_sum = (only, delta_g, snap), total
+        self._restore(after_as)
+        out.put_span(start, span_as)
+        kept.clear()
+        kept.update(kept_as)
+        return best
 
     def prepass_frames(self, frames: int) -> int:
         """Frames of the offline shape pre-pass :meth:`run` makes over a recording of
