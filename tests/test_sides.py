@@ -315,3 +315,5 @@ def test_prefer_exchanged_needs_a_lower_delta_on_the_same_frames():
         pt.SideSettings(arbitrate_after=-1)
     with pytest.raises(ValueError, match="arbitrate"):
         pt.SideSettings(arbitrate=1)
+    with pytest.raises(ValueError, match="arbitrate_groups"):
+        pt.SideSettings(arbitrate_groups="yes")

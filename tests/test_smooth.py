@@ -820,6 +820,44 @@ def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, mon
     )
 
 
+def test_each_groups_exchange_is_judged_on_its_own_with_arbitrate_groups(clip, monkeypatch):
+    """The detector swaps the arms in frames 12-27; the pre-pass reads the arms right and the
+    legs wrongly exchanged there. Decided together, the legs' misreading rides along with the
+    arms' true exchange (their Delta summed beats the detections'); with
+    ``arbitrate_groups`` each group's exchange is also tracked alone and the arms' wins."""
+    T = len(clip.depth)
+    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
+    sw = np.arange(12, 28)
+    for a, b in pt.SIDE_GROUPS["arms"]:
+        kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
+        conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
+
+    def reading(self, depths, keypoints2d, confidence):
+        r = np.zeros((T, len(self.sides.groups)), bool)
+        r[12:28, :2] = True  # arms (right) and legs (wrong)
+        return np.zeros(T, np.int64), r
+
+    monkeypatch.setattr(pt.Tracker, "_two_sided_labels", reading)
+    gt, out = clip.joints3d, {}
+    for alone in (False, True):
+        sides = pt.SideSettings.for_mode("offline", arbitrate_groups=alone)
+        tr = pt.Tracker(clip.intrinsics, refine=None, sides=sides)
+        res = tr.run(clip.depth, kp, conf)
+        assert [s[:2] for s in tr.side_spans] == [(12, 33)] and tr.side_spans[0][4]
+        out[alone] = res, tr.side_span_groups[0]
+    (together, g_together), (alone, g_alone) = out[False], out[True]
+    assert g_together.tolist()[:2] == [True, True] and together.exchanged[sw, 1].all()
+    assert g_alone.tolist()[:2] == [True, False]
+    assert alone.exchanged[sw, 0].all() and not alone.exchanged[:, 1].any()
+    assert pt.swapped_limb_frames(alone.keypoints3d, gt) < pt.swapped_limb_frames(
+        together.keypoints3d, gt
+    )
+    d_alone = pt.accuracy(alone.keypoints3d, gt).mean_mm
+    d_together = pt.accuracy(together.keypoints3d, gt).mean_mm
+    print(f"D {d_together:.1f} mm decided together, {d_alone:.1f} per group")
+    assert d_alone < d_together - 5.0
+
+
 def _misreading_taken_as_read_costs(taken, taken_kps, judged_kps, gt):
     """The arm labels misread in frames 10-19, taken as read, cost >10 mm over frames 10-24
     against the arbitrated track."""
