@@ -195,8 +195,10 @@ class SideSettings:
     take down another's true one (on a tuning clip the legs' swap was read right while the
     arms' and torso's scattered false readings made the exchanged reading lose the person;
     benchmarks/README.md, "What the left/right undoing does on 1386") or ride along with it.
-    One more tracking of the stretch per group read exchanged. Opt-in, being decided. Not in
-    the paper."""
+    One more tracking of the stretch per group read exchanged. Opt-in: on 56 fresh tuning
+    runs (2026-12-04) D -0.45 mm but swapped-limb frames 426 -> 430, moving clips by up to
+    25 mm either way; its screen failed (benchmarks/README.md, "Each group's exchange judged
+    on its own"). Not in the paper."""
     arbitrate_after: int = 5
     """Frames after each exchanged stretch that its Delta comparison also covers (a wrong
     labelling leaves the limbs misplaced for a few frames after it ends)."""
