@@ -123,8 +123,10 @@ class FollowSettings:
     limb that swung further than the gate; with a few such keypoints the median cost of the
     only person in view outgrows the widening gate and the track is never re-acquired (a
     diagnosis of 2026-12-04 on a tuning clip: 45 of 120 frames lost; benchmarks/README.md,
-    "The follower's reference"). :data:`PLAUSIBLE_DEPTH_BAND` (0.4) is the candidate value,
-    opt-in until decided. Not in the paper."""
+    "The follower's reference"). :data:`PLAUSIBLE_DEPTH_BAND` (0.4) is the value measured;
+    opt-in: it passed a tuning screen, a people check and the offline report stage, then
+    failed the online report stage by one cell and an offline-only screen by 0.06 % of
+    swapped-limb frames (2026-12-04; benchmarks/README.md). Not in the paper."""
 
     def __post_init__(self):
         v = self.depth_band
