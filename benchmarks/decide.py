@@ -82,7 +82,7 @@ import numpy as np
 from accuracy import REAL as REPORTED_REAL  # the reported real clips (CMU: the late group)
 from parts import add_part_arguments, check_part, share
 from seeds import TUNING_SEEDS, parse_seeds
-from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion
+from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion, shared_measures
 
 import posetrack as pt
 
@@ -308,8 +308,10 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     """Track each ``((group, seed, motion, variety), occlusion, tracker seed)`` of ``todo``
     with every variant (name -> ``Tracker`` keywords) and append one JSON line per item to
     ``out`` (also printed): D, coverage, swapped-limb frames, acceleration error, detections
-    dropped, seconds, the step's median ms a frame, the mean Delta of the tracked frames and,
-    online, the motion model's median ms a frame."""
+    dropped, seconds, the step's median ms a frame, the mean Delta of the tracked frames,
+    online the motion model's median ms a frame, and for every variant after the first its
+    D and swapped-limb frames and the first variant's over the frames both answered
+    (``"shared"``, :func:`tune.shared_measures`; ``paired.py --shared`` reads them)."""
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
             recording, start = split_start(motion)
@@ -318,6 +320,7 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
                 height=240, with_rgb=False, variety=variety, motion_start=start,
             )  # fmt: skip
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
+            first = None  # the first variant's keypoints: the others' "shared" baseline
             for name, kwargs in variants.items():
                 t0 = time.perf_counter()
                 kwargs = dict(kwargs)
@@ -337,6 +340,11 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
                 }  # fmt: skip
                 if mode == "online":  # the online motion model's median time per frame
                     rec[name]["motion_ms"] = float(np.median(tr.motion_times) * 1000)
+                if first is None:
+                    first = (name, res.keypoints3d)
+                else:  # D and swaps over the frames both this and the first variant answered
+                    shared = shared_measures(res.keypoints3d, first[1], seq.joints3d)
+                    rec[name]["shared"] = {"vs": first[0], **shared}
             f.write(json.dumps(rec) + "\n")
             f.flush()
             print(json.dumps(rec), flush=True)

@@ -75,10 +75,13 @@ def join(records: list[tuple[dict, str]]) -> list[dict]:
     return list(out.values())
 
 
-def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
+def run_changes(records: list[dict], base: str, candidate: str, shared: bool = False) -> list[dict]:
     """One entry per run: its group, occlusion, tracker seeds, both variants' D averaged over
     them, the change and the baseline's spread (standard deviation over seeds; 0 with one).
-    Every run must have both variants and the same tracker seeds as the others."""
+    Every run must have both variants and the same tracker seeds as the others. ``shared``:
+    D and swapped-limb frames over the frames both variants answered (the candidate's
+    ``"shared"`` entry, recorded by ``decide.py`` against ``base``) instead of each
+    variant's own frames."""
     runs = defaultdict(dict)
     for rec in records:
         for name in (base, candidate):
@@ -100,21 +103,37 @@ def run_changes(records: list[dict], base: str, candidate: str) -> list[dict]:
         )
     out = []
     for (group, seed, motion, occ), by_seed in runs.items():
-        b = np.array([by_seed[t][base]["D"] for t in full])
-        c = np.array([by_seed[t][candidate]["D"] for t in full])
+        pick = {t: _measures(by_seed[t], base, candidate, shared) for t in full}
+        b = np.array([pick[t][0]["D"] for t in full])
+        c = np.array([pick[t][1]["D"] for t in full])
         out.append({
             "group": group, "seed": seed, "motion": motion, "occ": occ, "tseeds": full,
             "base_D": float(b.mean()), "candidate_D": float(c.mean()),
             "base_D_by_tseed": b.tolist(),
             "change": float((c - b).mean()), "spread": float(b.std(ddof=1)) if len(b) > 1 else 0.0,
-            "base_swaps": sum(by_seed[t][base]["swaps"] for t in full),
-            "candidate_swaps": sum(by_seed[t][candidate]["swaps"] for t in full),
+            "base_swaps": sum(pick[t][0]["swaps"] for t in full),
+            "candidate_swaps": sum(pick[t][1]["swaps"] for t in full),
             # (nan where a record predates the measure)
             **{f"{role}_{m}": float(np.mean([by_seed[t][name].get(m, math.nan) for t in full]))
                for role, name in (("base", base), ("candidate", candidate))
                for m in ("accel", "cov")},
         })  # fmt: skip
     return out
+
+
+def _measures(rec: dict, base: str, candidate: str, shared: bool) -> tuple[dict, dict]:
+    """The baseline's and the candidate's ``D`` and ``swaps`` in one record: each over its
+    own frames, or (``shared``) over the frames both answered."""
+    if not shared:
+        return rec[base], rec[candidate]
+    s = rec[candidate].get("shared")
+    if s is None or s.get("vs") != base:
+        raise SystemExit(
+            f"error: clip {rec['group']} {rec['seed']} occ {rec['occ']} tracker seed "
+            f"{rec['tseed']}: {candidate!r} has no shared-frame measures against {base!r} "
+            f"(decide.py records them against the first variant tracked, from 2026-12-04)"
+        )
+    return {"D": s["base_D"], "swaps": s["base_swaps"]}, {"D": s["D"], "swaps": s["swaps"]}
 
 
 def summary(runs: list[dict]) -> dict:
@@ -179,6 +198,11 @@ def main() -> int:
         help="instead: that variant's mean D per tracker seed (how much a reported mean moves "
         "with the seed alone)",
     )  # fmt: skip
+    ap.add_argument(
+        "--shared", action="store_true",
+        help="D and swapped-limb frames over the frames both variants answered (decide.py's "
+        "'shared' measures) instead of each variant's own frames; coverage as always",
+    )  # fmt: skip
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
     for path in a.runs:
@@ -201,11 +225,12 @@ def main() -> int:
             doc["table"] = [{"label": label, **r} for label, r in rows]
             Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
         return 0
-    runs = run_changes(load(a.runs), a.base, a.candidate)
+    runs = run_changes(load(a.runs), a.base, a.candidate, shared=a.shared)
     rows = table(runs)
     print(
-        f"{a.candidate} - {a.base}, D mm (13 joints), each run averaged over tracker seeds "
-        f"{runs[0]['tseeds']}"
+        f"{a.candidate} - {a.base}, D mm (13 joints"
+        + (", frames both answered" if a.shared else "")
+        + f"), each run averaged over tracker seeds {runs[0]['tseeds']}"
     )
     head = f"{'runs':<28} {'n':>3} {'base':>7} {'cand':>7} {'change':>7} {'se':>5} {'t':>6}"
     print(
@@ -220,7 +245,8 @@ def main() -> int:
             f"{s['base_cov']:.3f}->{s['candidate_cov']:.3f}"
         )
     if a.json:
-        doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs}
+        doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs,
+               "shared": a.shared}  # fmt: skip
         doc["table"] = [{"label": label, **s} for label, s in rows]
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     return 0

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import sys
 import time
@@ -93,6 +94,23 @@ def decision_measures(keypoints3d: np.ndarray, truth: np.ndarray) -> dict:
         "D": acc.mean_mm, "cov": acc.coverage,
         "swaps": pt.swapped_limb_frames(keypoints3d, truth),
         "accel": float(pt.acceleration_error(keypoints3d, truth)),
+    }  # fmt: skip
+
+
+def shared_measures(keypoints3d: np.ndarray, base: np.ndarray, truth: np.ndarray) -> dict:
+    """D over the 13 body joints and swapped-limb frames of an output and of a baseline's
+    output of the same clip, over the frames both answered (``decide.py``'s ``"shared"``).
+    A change that answers frames the baseline did not is charged for how hard those frames
+    are when D runs over each version's own frames; here it is not (its coverage says the
+    rest)."""
+    both = np.isfinite(keypoints3d).any(axis=(1, 2)) & np.isfinite(base).any(axis=(1, 2))
+    if not both.any():
+        return {"frames": 0, "D": math.nan, "base_D": math.nan, "swaps": 0, "base_swaps": 0}
+    k, b, g = keypoints3d[both], base[both], truth[both]
+    return {
+        "frames": int(both.sum()),
+        "D": pt.accuracy(k, g).mean_mm, "base_D": pt.accuracy(b, g).mean_mm,
+        "swaps": pt.swapped_limb_frames(k, g), "base_swaps": pt.swapped_limb_frames(b, g),
     }  # fmt: skip
 
 
