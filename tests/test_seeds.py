@@ -487,3 +487,28 @@ def test_benchmark_parts_share_every_run_once_and_refuse_a_part_out_of_range(cap
             parts.check_part(ap, ap.parse_args(bad))
         assert e.value.code == 2
     assert "count from 0" in capsys.readouterr().err
+
+
+def test_shared_frame_measures_leave_out_frames_only_one_version_answered():
+    # decide.py's "shared" and paired.py --shared: a version that answers a hard frame the
+    # baseline did not is not charged for it there (its coverage says so instead).
+    tune, paired = load("tune"), load("paired")
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(6, 18, 3)) + np.array([0.0, 0.0, 3.0])
+    base = truth + 0.01
+    cand = truth + 0.01
+    base[4:] = np.nan  # the baseline lost frames 4-5
+    cand[4] = truth[4] + 0.5  # the candidate answered them, frame 4 badly
+    s = tune.shared_measures(cand, base, truth)
+    assert s["frames"] == 4 and abs(s["D"] - s["base_D"]) < 1e-9
+    assert pt.accuracy(cand, truth).mean_mm > s["D"] + 50  # over its own frames it is charged
+    rec = {"group": "g", "seed": 1, "motion": "m", "occ": 0, "tseed": 0,
+           "default": {"D": 10.0, "swaps": 0}, "cand": {"D": 99.0, "swaps": 3,
+           "shared": {"vs": "default", **s}}}  # fmt: skip
+    own = paired.run_changes([rec], "default", "cand")[0]
+    both = paired.run_changes([rec], "default", "cand", shared=True)[0]
+    assert own["change"] == 89.0 and own["candidate_swaps"] == 3
+    assert abs(both["change"]) < 1e-9 and both["candidate_swaps"] == s["swaps"]
+    rec["cand"]["shared"]["vs"] = "lvm"  # measured against another variant
+    with pytest.raises(SystemExit, match="no shared-frame measures against 'default'"):
+        paired.run_changes([rec], "default", "cand", shared=True)
