@@ -17,7 +17,12 @@ seed is largely decided by which clips diverge under that seed.
 
     python benchmarks/paired.py RUNS.jsonl [MORE.jsonl ...] --candidate far1.0 [--json OUT]
     python benchmarks/paired.py RUNS.jsonl ... --spread default  # mean D per tracker seed
-"""
+    python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared  # both answered
+
+``--shared``: D and swapped-limb frames over the frames both variants answered (what
+``decide.py`` records against the first variant it tracks), for a change that answers frames
+the baseline did not: over each version's own frames those frames' difficulty is charged to
+it (benchmarks/README.md, "The follower's reference")."""
 
 from __future__ import annotations
 
