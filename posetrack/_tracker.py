@@ -781,11 +781,10 @@ class Tracker:
         # being tracked. None outside run() and online.
         self._two_sided: tuple[np.ndarray, np.ndarray] | None = None
         self._run_frame: int | None = None
-        # Offline with arbitration (SideSettings.arbitrate): True while a stretch is tracked
-        # with the labels as detected.
-        self._as_detected = False
-        # Offline, while one group's exchange is tracked alone (SideSettings.arbitrate_groups).
-        self._only_groups: np.ndarray | None = None
+        # Offline with arbitration (SideSettings.arbitrate): while a stretch is tracked again,
+        # the groups whose two-sided reading applies (all False: the labels as detected; one
+        # group: SideSettings.arbitrate_groups); None: every group.
+        self._exchange_mask: np.ndarray | None = None
         # Online with arbitration: the groups the depth kept as detected (until the labeller
         # reads them as detected again), the groups this frame newly exchanged (or held
         # exchanged past online_rejudge frames since they were judged), and the stretch being
@@ -1018,12 +1017,13 @@ class Tracker:
 
     def _offline_exchanged(self, p: int, forward: np.ndarray) -> np.ndarray:
         """In offline :meth:`run`, the labelling of detection ``p`` in the frame being tracked:
-        the pre-pass's where it labelled that detection (unless a stretch is being tracked as
-        detected); elsewhere as detected when arbitrating, else the forward pass's."""
+        the pre-pass's where it labelled that detection (while a stretch is tracked again, for
+        the groups of ``_exchange_mask`` only); elsewhere as detected when arbitrating, else
+        the forward pass's."""
         persons, exchanged = self._two_sided
-        if persons[self._run_frame] == p and not self._as_detected:
+        if persons[self._run_frame] == p:
             row = exchanged[self._run_frame]
-            return row if self._only_groups is None else row & self._only_groups
+            return row if self._exchange_mask is None else row & self._exchange_mask
         return np.zeros_like(forward) if self.sides.arbitrate else forward
 
     @property
@@ -1488,8 +1488,7 @@ class Tracker:
                 t = self._arbitrate_span(start, spans[start], out, kept, frames, progress)
             frames(progress, t, T)
         finally:
-            self._two_sided, self._run_frame, self._as_detected = None, None, False
-            self._only_groups = None
+            self._two_sided, self._run_frame, self._exchange_mask = None, None, None
         back = None
         if both_ways:
             back = self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
@@ -1823,75 +1822,77 @@ class Tracker:
         """Track frames ``[start, stop)`` twice from the same state, with the two-sided
         labelling and with the labels as detected, and keep the reading whose poses score the
         lower Delta (:func:`prefer_exchanged`). Returns ``stop``."""
-        before = self._snapshot()
-        saved, kept_before = out.copy_span(start, stop), dict(kept)
-        frames(None, start, stop)
-        delta_ex = out.delta[start:stop].copy()
+        before = self._point(start, stop, out, kept)
+        delta_ex = self._reading(start, stop, out, frames, None, None)
         groups = out.exchanged[start:stop].any(axis=0)
-        after_ex, span_ex, kept_ex = self._snapshot(), out.copy_span(start, stop), dict(kept)
-        self._restore(before)
-        out.put_span(start, saved)
-        kept.clear()
-        kept.update(kept_before)
-        self._as_detected = True
-        frames(progress, start, stop)
-        self._as_detected = False
-        delta_as = out.delta[start:stop].copy()
+        exchanged = self._point(start, stop, out, kept)
+        self._back_to(before, start, out, kept)
+        delta_as = self._reading(start, stop, out, frames, progress, np.zeros_like(groups))
         chosen = prefer_exchanged(delta_as, delta_ex, self.sides.arbitrate_margin)
         if self.sides.arbitrate_groups and groups.sum() > 1:
             # Every group's exchange alone too; the lowest Delta summed of those that beat the
             # detections, the exchange of all of them included, is kept.
             bar = np.nansum(delta_ex) if chosen else np.inf
             best = self._arbitrate_groups(start, stop, out, kept, frames, before, groups,
-                                          delta_as, saved, kept_before, bar)  # fmt: skip
+                                          delta_as, bar)  # fmt: skip
             if best is not None:  # one group's exchange alone did best
-                chosen, groups, delta_ex, (after_ex, span_ex, kept_ex) = True, *best
+                chosen, groups, delta_ex, exchanged = True, *best
         self.side_spans.append(
             (start, stop, float(np.nansum(delta_as)), float(np.nansum(delta_ex)), chosen)
         )
         self.side_span_groups.append(groups)
         if chosen:
-            self._restore(after_ex)
-            out.put_span(start, span_ex)
-            kept.clear()
-            kept.update(kept_ex)
+            self._back_to(exchanged, start, out, kept)
         return stop
 
+    def _point(self, start: int, stop: int, out: _RunOutputs, kept: dict) -> tuple:
+        """Where an arbitrated stretch ``[start, stop)`` can be tracked again from or come
+        back to: the tracker's state, the stretch's outputs and the kept frames."""
+        return self._snapshot(), out.copy_span(start, stop), dict(kept)
+
+    def _back_to(self, point: tuple, start: int, out: _RunOutputs, kept: dict) -> None:
+        """The tracker, the outputs and ``kept`` as they were at ``point`` (:meth:`_point`)."""
+        snap, span, kept_then = point
+        self._restore(snap)
+        out.put_span(start, span)
+        kept.clear()
+        kept.update(kept_then)
+
+    def _reading(
+        self, start: int, stop: int, out: _RunOutputs, frames, progress, mask: np.ndarray | None
+    ) -> np.ndarray:
+        """Track ``[start, stop)`` with the two-sided labelling applied to the groups of
+        ``mask`` only (None: every group; all False: the labels as detected); the Delta of
+        its frames."""
+        self._exchange_mask = mask
+        try:
+            frames(progress, start, stop)
+        finally:
+            self._exchange_mask = None
+        return out.delta[start:stop].copy()
+
     def _arbitrate_groups(
-        self, start, stop, out: _RunOutputs, kept: dict, frames, before, groups, delta_as,
-        saved, kept_before, bar: float,
+        self, start, stop, out: _RunOutputs, kept: dict, frames, before: tuple, groups,
+        delta_as, bar: float,
     ):  # fmt: skip
         """:attr:`SideSettings.arbitrate_groups`: the stretch ``[start, stop)`` tracked once
-        per group read exchanged, with only that group's exchange (from the same state
-        ``before``). Returns ``(groups, Delta per frame, (state, outputs, kept))`` of the group
-        whose Delta summed is lowest among those that beat the detections
-        (:func:`prefer_exchanged`) and ``bar`` (the exchange of every group's sum where that
-        beat them, else inf), or ``None``; the tracker is left as detected (its state, outputs
-        and ``kept`` as they were after the stretch tracked as detected)."""
-        after_as, span_as, kept_as = self._snapshot(), out.copy_span(start, stop), dict(kept)
+        per group read exchanged, with only that group's exchange (from ``before``, a
+        :meth:`_point`). Returns ``(groups, Delta per frame, point)`` of the group whose Delta
+        summed is lowest among those that beat the detections (:func:`prefer_exchanged`) and
+        ``bar`` (the exchange of every group's sum where that beat them, else inf), or
+        ``None``; the tracker is left as detected (as it was when called)."""
+        detected = self._point(start, stop, out, kept)
         best, best_sum = None, bar
         for g in np.flatnonzero(groups):
             only = np.zeros_like(groups)
             only[g] = True
-            self._restore(before)
-            out.put_span(start, saved)
-            kept.clear()
-            kept.update(kept_before)
-            self._only_groups = only
-            try:
-                frames(None, start, stop)
-            finally:
-                self._only_groups = None
-            delta_g = out.delta[start:stop].copy()
+            self._back_to(before, start, out, kept)
+            delta_g = self._reading(start, stop, out, frames, None, only)
             total = float(np.nansum(delta_g))
             wins = prefer_exchanged(delta_as, delta_g, self.sides.arbitrate_margin)
             if wins and total < best_sum:
-                snap = (self._snapshot(), out.copy_span(start, stop), dict(kept))
-                best, best_sum = (only, delta_g, snap), total
-        self._restore(after_as)
-        out.put_span(start, span_as)
-        kept.clear()
-        kept.update(kept_as)
+                best, best_sum = (only, delta_g, self._point(start, stop, out, kept)), total
+        self._back_to(detected, start, out, kept)
         return best
 
     def prepass_frames(self, frames: int) -> int:
