@@ -111,22 +111,40 @@ class FollowSettings:
     mask_others: bool = True
     """Remove the other detected people's pixels from the depth the tracker fits and scores."""
     depth_band: float = 0.0
-    """> 0 (metres): the reference follows the whole body. A detection's keypoint lifted
-    further than this from its median lifted depth is read as having missed the body (a
-    keypoint a few pixels off a thin limb reads the wall behind it; :func:`plausible_depth`):
-    it is compared in 2D only (:func:`match_costs`) and never enters the reference; and once
-    a detection is accepted, every keypoint it lifts within the band replaces its reference
-    (:meth:`PersonFollower.observe`), not only those within the gate of their old place.
-    0 (the shipped behaviour): the reference takes any lifted keypoint, and afterwards only
-    those within the gate. There, a keypoint lifted onto the wall once stays in the
-    reference (later, correct liftings lie far from it, so they never replace it), as does a
-    limb that swung further than the gate; with a few such keypoints the median cost of the
-    only person in view outgrows the widening gate and the track is never re-acquired (a
-    diagnosis of 2026-12-04 on a tuning clip: 45 of 120 frames lost; benchmarks/README.md,
-    "The follower's reference"). :data:`PLAUSIBLE_DEPTH_BAND` (0.4) is the value measured;
-    opt-in: it passed a tuning screen, a people check and the offline report stage, then
-    failed the online report stage by one cell and an offline-only screen by 0.06 % of
-    swapped-limb frames (2026-12-04; benchmarks/README.md). Not in the paper."""
+    """> 0 (metres): the reference follows the whole body. A detection's keypoint lifted further
+    than this from its median lifted depth is read as having missed the body (a keypoint a few
+    pixels off a thin limb reads the wall behind it; :func:`plausible_depth`): it is compared in
+    2D only (:func:`match_costs`) and never enters the reference; and once a detection is
+    accepted, every keypoint it lifts within the band replaces its reference
+    (:meth:`PersonFollower.observe`), not only those within the gate of their old place. 0 (the
+    class default; what online and per-frame tracking use): the reference takes any lifted
+    keypoint, and afterwards only those within the gate. There, a keypoint lifted onto the wall
+    once stays in the reference (later, correct liftings lie far from it, so they never replace
+    it), as does a limb that swung further than the gate; with a few such keypoints the median
+    cost of the only person in view outgrows the widening gate and the track is never
+    re-acquired (a diagnosis of 2026-12-04 on a tuning clip: 45 of 120 frames lost;
+    benchmarks/README.md, "The follower's reference"). :data:`PLAUSIBLE_DEPTH_BAND` (0.4) is the
+    value measured; the tracker's default offline (:meth:`for_mode`, ``follow="auto"``) since
+    2026-12-04: on the frames both versions answer it met its rule on fresh tuning runs and in
+    the offline report stage (answered frames 22,375 -> 22,754 of 23,040, D -0.25 mm), and
+    failed the online report stage by one cell (real motion, wide, clean: +3.0 mm at equal
+    coverage), so online and per-frame it stays 0 (benchmarks/README.md, "The follower's
+    reference"). Not in the paper."""
+
+    @classmethod
+    def for_mode(cls, mode: str, **changes) -> FollowSettings:
+        """The :class:`Tracker`'s default for a mode (``follow="auto"``): :attr:`depth_band`
+        :data:`PLAUSIBLE_DEPTH_BAND` offline, 0 online and per-frame (decided on tuning runs
+        and the report stages, see :attr:`depth_band`). ``changes`` override fields, e.g.
+        ``gate=0.5``."""
+        if mode not in ("offline", "online", "per-frame"):
+            raise ValueError(
+                f"FollowSettings.for_mode: mode must be 'offline', 'online' or 'per-frame', "
+                f"got {mode!r}"
+            )
+        if mode == "offline":
+            changes = {"depth_band": PLAUSIBLE_DEPTH_BAND, **changes}
+        return cls(**changes)
 
     def __post_init__(self):
         v = self.depth_band

@@ -504,13 +504,14 @@ class Tracker:
     initialises (``person``: ``"auto"`` = the most complete detection, the closest of those;
     ``"largest"``, ``"closest"`` or an index into the first frame's list) and then follows it:
     each frame the detection nearest (in 3D) to where the person was last seen is taken if it
-    lies within a gate (``follow``, :class:`FollowSettings`), the others are ignored and their
-    pixels removed from the depth the tracker fits. When only other people are in view the frame
-    is 'lost' (the last pose is held); after ``config.lost_patience`` such frames the track
-    restarts, but only on a detection near the last position and consistent with the body
-    proportions measured while tracking. ``follow=None`` takes the highest-scoring detection
-    every frame (what a per-frame choice does: the track hops between people; kept for
-    comparison).
+    lies within a gate (``follow``, :class:`FollowSettings`; ``"auto"``, the default:
+    :meth:`FollowSettings.for_mode`, offline with a depth band), the others are ignored and
+    their pixels removed from the depth the tracker fits. When only other people are in view
+    the frame is 'lost' (the last pose is held); after ``config.lost_patience`` such frames
+    the track restarts, but only on a detection near the last position and consistent with
+    the body proportions measured while tracking. ``follow=None`` takes the highest-scoring
+    detection every frame (what a per-frame choice does: the track hops between people; kept
+    for comparison).
 
     **Left/right swaps of the detector** are undone before each frame is fitted
     (``sides``, :class:`SideSettings`; ``"auto"``, the default: on offline and online, off
@@ -552,7 +553,7 @@ class Tracker:
         seed: int = 0,
         depth_scale: float = 1000.0,
         person: PersonRule = "auto",
-        follow: FollowSettings | None = FollowSettings(),
+        follow: FollowSettings | str | None = "auto",
         mode: str = "offline",
         lag: int = ONLINE_LAG,
         motion: SmoothSettings = SmoothSettings(),
@@ -638,9 +639,11 @@ class Tracker:
             raise ValueError(f"Tracker: intrinsics are not physical: fx, fy, cx, cy = {vals}")
         if not (np.isfinite(depth_scale) and depth_scale > 0):
             raise ValueError(f"Tracker: depth_scale must be positive, got {depth_scale!r}")
+        if isinstance(follow, str) and follow == "auto":
+            follow = FollowSettings.for_mode(mode)
         if follow is not None and not isinstance(follow, FollowSettings):
             raise TypeError(
-                f"Tracker: follow must be posetrack.FollowSettings or None, got {type(follow)}"
+                f"Tracker: follow must be 'auto', posetrack.FollowSettings or None, got {follow!r}"
             )
         is_index = isinstance(person, (int, np.integer)) and not isinstance(person, bool)
         if (is_index and person < 0) or (not is_index and person not in PERSON_RULES):
@@ -2175,7 +2178,7 @@ def track(
     seed: int = 0,
     progress: ProgressCallback | None = None,
     person: PersonRule = "auto",
-    follow: FollowSettings | None = FollowSettings(),
+    follow: FollowSettings | str | None = "auto",
     mode: str = "offline",
     lag: int = ONLINE_LAG,
     motion: SmoothSettings = SmoothSettings(),
