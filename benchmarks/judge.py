@@ -104,6 +104,15 @@ def run_clip(seq) -> dict:
         "exchanged_fitted_as_detected": int(missed.sum()),
         "of_which_in_refused_judgements": int((missed & refused).sum()),
         "correct_fitted_exchanged": int((~det & fitted_ex).sum()),
+        "by_group": {
+            name: {
+                "detections_exchanged": int(det[:, g].sum()),
+                "exchanged_fitted_as_detected": int(missed[:, g].sum()),
+                "of_which_in_refused_judgements": int((missed & refused)[:, g].sum()),
+                "pose_swapped": int(pose[:, g].sum()),
+            }
+            for g, name in enumerate(GROUPS)
+        },
         "spans": spans,
     }  # fmt: skip
 
@@ -125,7 +134,15 @@ def main() -> int:
     }  # fmt: skip
     for k, v in frames.items():
         print(f"{k.replace('_', ' ')}: {v} group-frames")
-    write_diagnosis(a.out, "judge", table, runs, frames=frames)
+    keys = ("detections_exchanged", "exchanged_fitted_as_detected",
+            "of_which_in_refused_judgements", "pose_swapped")  # fmt: skip
+    by_group = {
+        name: {k: sum(r["by_group"][name][k] for r in runs) for k in keys} for name in GROUPS
+    }
+    print(f"\n{'group':8s} " + " ".join(f"{k.replace('_', ' '):>30s}" for k in keys))
+    for name, row in by_group.items():
+        print(f"{name:8s} " + " ".join(f"{row[k]:30d}" for k in keys))
+    write_diagnosis(a.out, "judge", table, runs, frames=frames, by_group=by_group)
     return 0
 
 

@@ -231,6 +231,19 @@ class SideSettings:
     made D worse by 1.4-1.9 mm and the swapped-limb frames 180 -> 260 at 0.25 / 0.5 m
     (benchmarks/README.md, "Online: a kept exchange held until the detections jump back").
     Not in the paper."""
+    online_groups: bool = False
+    """Online (with :attr:`arbitrate`): where the forward pass newly reads several groups
+    exchanged in one frame, each group's exchange alone is also tracked over the judged
+    frames (the others as detected), and of the readings that beat the detections
+    (:func:`prefer_exchanged`, after :attr:`online_min_held`), every group's exchange
+    together included, the one whose Delta summed is lowest is kept (the online twin of
+    :attr:`arbitrate_groups`). Judged together, one group's misreading takes down another's
+    true exchange or rides along with it (a test clip: D 52.1 mm together, 26.9 per group);
+    on the tuning clip that prompted it (the arms' true swap refused together with a misread
+    of the legs, then a whole-body swap fitted and locked in) the arms alone lost to the
+    detections too (benchmarks/README.md, "Online: where the left/right undoing loses"). One
+    more tracking of the judged frames per group read, only in those frames. Opt-in. Not in
+    the paper."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -270,7 +283,7 @@ class SideSettings:
         return cls(**changes)
 
     def __post_init__(self):
-        for name in ("arbitrate", "arbitrate_groups", "torso_with_limbs"):
+        for name in ("arbitrate", "arbitrate_groups", "online_groups", "torso_with_limbs"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(
                     f"SideSettings: {name} must be True or False, got {getattr(self, name)!r}"

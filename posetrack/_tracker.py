@@ -435,35 +435,63 @@ class _Branch:
 
 
 @dataclasses.dataclass
+class _Reading:
+    """One exchanged reading of a stretch judged online: which groups it exchanges, its
+    branch, and in how many judged frames its forward pass still read one of them exchanged
+    (the first one did)."""
+
+    groups: np.ndarray
+    branch: _Branch
+    held: int = 1
+
+
+@dataclasses.dataclass
 class _OnlineArbitration:
     """A stretch tracked both ways online (:meth:`Tracker._update_arbitrated`)."""
 
     left: int
-    exchanged: _Branch
+    readings: list[_Reading]
+    """Every newly read group's exchange together first; with
+    :attr:`SideSettings.online_groups`, where several were read together, then each one's
+    alone."""
     detected: _Branch | None = None
-    groups: np.ndarray | None = None
-    """``bool (groups,)``: the groups being judged."""
-    held: int = 1
-    """Judged frames in which the exchanged reading's forward pass still read one of
-    ``groups`` exchanged (the first one did)."""
 
-    def prefers_exchanged(self, sides: SideSettings) -> bool:
-        # Until the exchanged reading has held long enough the detections' labels lead (the
+    @property
+    def groups(self) -> np.ndarray:
+        """``bool (groups,)``: the groups being judged."""
+        return self.readings[0].groups
+
+    @property
+    def exchanged(self) -> _Branch:
+        """The branch with every judged group exchanged."""
+        return self.readings[0].branch
+
+    def leading(self, sides: SideSettings) -> tuple[np.ndarray | None, _Branch]:
+        """``(groups exchanged, branch)`` of the reading that leads: of the exchanged
+        readings that held long enough and beat the detections (:func:`prefer_exchanged`),
+        the one whose Delta summed is lowest; else ``(None, the detections' branch)``."""
+        # Until an exchanged reading has held long enough the detections' labels lead (the
         # leading reading's frames enter the poses published meanwhile); a stretch shorter
         # than online_min_held frames needs all of them.
         frames = len(self.exchanged.rows) + self.left
-        if self.held < min(sides.online_min_held, frames):
-            return False
-        return prefer_exchanged(
-            np.array(self.detected.deltas), np.array(self.exchanged.deltas),
-            sides.arbitrate_margin,
-        )  # fmt: skip
+        best, best_sum = (None, self.detected), np.inf
+        for r in self.readings:
+            if r.held < min(sides.online_min_held, frames):
+                continue
+            deltas = np.array(r.branch.deltas)
+            wins = prefer_exchanged(np.array(self.detected.deltas), deltas, sides.arbitrate_margin)
+            if wins and np.nansum(deltas) < best_sum:
+                best, best_sum = (r.groups, r.branch), float(np.nansum(deltas))
+        return best
 
-    def report(self, frames_seen: int, chosen: bool) -> tuple[int, int, float, float, bool]:
+    def report(self, frames_seen: int, kept: _Branch) -> tuple[int, int, float, float, bool]:
+        """A :attr:`Tracker.side_spans` entry; its exchanged Delta is the kept reading's, or
+        where the detections' was kept, every group's exchange together."""
         n = len(self.exchanged.deltas)
+        ex = self.exchanged if kept is self.detected else kept
         return (
             frames_seen - n, frames_seen, float(np.nansum(self.detected.deltas)),
-            float(np.nansum(self.exchanged.deltas)), chosen,
+            float(np.nansum(ex.deltas)), kept is not self.detected,
         )  # fmt: skip
 
 
@@ -1241,32 +1269,44 @@ class Tracker:
                 return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = _Branch(self._online_snapshot(), [self._judged_row(out)])
-            arb = _OnlineArbitration(left=self._online_frames(), exchanged=first, groups=new)
+            arb = _OnlineArbitration(left=self._online_frames(), readings=[_Reading(new, first)])
+            if self.sides.online_groups and new.sum() > 1:
+                # Each group's exchange alone too: the others vetoed as in the detections'.
+                for g in np.flatnonzero(new):
+                    only = np.zeros_like(new)
+                    only[g] = True
+                    self._restore_online(before)
+                    self._veto = self._veto | (new & ~only)
+                    row = self._judged_row(self._update_once(depth, kp2d, conf))
+                    self._since_judged[only] = 0
+                    arb.readings.append(_Reading(only, _Branch(self._online_snapshot(), [row])))
             self._restore_online(before)
             self._veto = self._veto | new
             out = self._update_once(depth, kp2d, conf)
             arb.detected = _Branch(self._online_snapshot(), [self._judged_row(out)])
             self._arbitration = arb
         else:
-            for branch in (arb.exchanged, arb.detected):
+            for reading in [*arb.readings, None]:
+                branch = arb.detected if reading is None else reading.branch
                 self._restore_online(branch.snapshot)
                 branch.rows.append(self._judged_row(self._update_once(depth, kp2d, conf)))
                 branch.snapshot = self._online_snapshot()
-                if branch is arb.exchanged and self.exchanged[arb.groups].any():
-                    arb.held += 1
+                if reading is not None and self.exchanged[reading.groups].any():
+                    reading.held += 1
         arb.left -= 1
-        keep = arb.exchanged if arb.prefers_exchanged(self.sides) else arb.detected
+        kept_groups, keep = arb.leading(self.sides)
         if arb.left <= 0:
             self._arbitration = None
-            self.side_spans.append(arb.report(self._frames_seen, keep is arb.exchanged))
-            self.side_span_groups.append(arb.groups.copy())
+            self.side_spans.append(arb.report(self._frames_seen, keep))
+            judged = arb.groups if kept_groups is None else kept_groups
+            self.side_span_groups.append(judged.copy())
             self._judged_rows = keep.rows
         self._restore_online(keep.snapshot)
-        if arb.left <= 0 and keep is arb.exchanged and self.sides.online_anchor > 0:
+        if arb.left <= 0 and kept_groups is not None and self.sides.online_anchor > 0:
             # The depth kept the exchange: the next frames continue it until the detections
             # jump back (SideSettings.online_anchor), not only while the 2D margin favours it.
-            self._labeller.anchor(arb.groups, self.sides.online_anchor)
-            self.exchanged = self.exchanged | arb.groups
+            self._labeller.anchor(kept_groups, self.sides.online_anchor)
+            self.exchanged = self.exchanged | kept_groups
         return keep.out
 
     def _judged_row(self, out: tuple) -> tuple:

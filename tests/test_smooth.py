@@ -858,6 +858,43 @@ def test_each_groups_exchange_is_judged_on_its_own_with_arbitrate_groups(clip, m
     assert d_alone < d_together - 5.0
 
 
+def test_online_each_groups_exchange_is_judged_on_its_own_with_online_groups(clip, monkeypatch):
+    """Online, the detector swaps the arms in frames 12-27 and the forward pass reads the
+    arms (right) and the legs (wrong) newly exchanged at frame 12. Judged together, the
+    legs' misreading takes the arms' true exchange down with it (or rides along); with
+    ``online_groups`` each group's exchange is also tracked alone and the arms' alone is
+    kept. Without it the arbitration is the shipped one (no reading alone is tracked)."""
+    T = len(clip.depth)
+    sw = np.arange(12, 28)
+    kp, conf = _arm_swap(clip, sw)
+
+    def reading(self, keypoints2d, confidence, points3d, has_depth):
+        # Which frame: the one whose keypoints these are.
+        t = int(np.argmin(np.abs(np.nan_to_num(kp) - np.nan_to_num(keypoints2d)).sum((1, 2))))
+        ex = np.zeros(len(self._slots), bool)
+        ex[:2] = 12 <= t < 28  # arms (right) and legs (wrong)
+        return (*self.relabel(keypoints2d, confidence, ex), ex)
+
+    monkeypatch.setattr(pt.SideLabeller, "update", reading)
+    runs = _online_pair(clip, kp, conf, "online_groups", (False, True), [])
+    k = pt.ONLINE_LAG + 1
+    gt = clip.joints3d
+    (together, spans_together), (alone, spans_alone) = runs[False], runs[True]
+    assert [s[:2] for s in spans_alone][:1] == [(12, 12 + k)] and spans_alone[0][4]
+    assert [s[:2] for s in spans_together][:1] == [(12, 12 + k)]
+    # Together: both groups' exchange or neither; alone: the arms' only, all through the swap.
+    assert together.exchanged[12, 0] == together.exchanged[12, 1]
+    assert alone.exchanged[sw, 0].all() and not alone.exchanged[:, 1].any()
+    d_alone = pt.accuracy(alone.keypoints3d, gt).mean_mm
+    d_together = pt.accuracy(together.keypoints3d, gt).mean_mm
+    print(f"D {d_together:.1f} mm judged together, {d_alone:.1f} per group")
+    assert pt.swapped_limb_frames(alone.keypoints3d, gt) < pt.swapped_limb_frames(
+        together.keypoints3d, gt
+    )
+    assert d_alone < d_together - 5.0
+    assert T == len(alone.exchanged)
+
+
 def _misreading_taken_as_read_costs(taken, taken_kps, judged_kps, gt):
     """The arm labels misread in frames 10-19, taken as read, cost >10 mm over frames 10-24
     against the arbitrated track."""
