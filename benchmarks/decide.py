@@ -51,7 +51,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``TrackerConfig(lift_band=M)``, metres), ``agreeX`` (``TrackerConfig(lost_agreement=X)``),
 ``followX`` (``FollowSettings(depth_band=X)``, metres), ``grouparb``
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
-(``SideSettings.for_mode(mode, online_groups=True)``),
+(``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
+(``TrackerConfig(reinit_check_fit=True)``),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
@@ -222,6 +223,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"sides": pt.SideSettings.for_mode(mode, arbitrate_groups=True)}
     if variant == "ogroups":
         return {"sides": pt.SideSettings.for_mode(mode, online_groups=True)}
+    if variant == "checkfit":
+        return {"config": pt.TrackerConfig(reinit_check_fit=True)}
     if variant == "bothways":
         return {"motion": pt.SmoothSettings(both_ways=True)}
     if variant == "crossfade":
@@ -295,7 +298,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'agreeX', 'followX', 'grouparb', 'ogroups', "
+        "'agreeX', 'followX', 'grouparb', 'ogroups', 'checkfit', "
         "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r|g]' (N >= 10), "
         "'gateX', 'sides:G+G...'"
     )

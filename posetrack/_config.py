@@ -294,6 +294,15 @@ class TrackerConfig(eqx.Module):
     --facing-only``; 15 failed on an occluded clip). A person does not turn round in half a
     second unseen; a detector reading them as facing away does, and a track restarted on its
     reading stays turned round (not in the paper)."""
+    reinit_check_fit: bool = eqx.field(default=False, static=True)
+    """With :attr:`reinit_keep_facing`: where a re-initialisation's start kept the lost
+    track's facing but its initial fit turned round (a whole-body left/right swap of the
+    detector that the start's closed form did not follow, while the shoulders and hips
+    already sat exchanged in the last tracked frame), the landmarks with every left/right
+    pair exchanged are fitted too and kept if that fit keeps the facing (host side; one more
+    initial fit there). Opt-in (2026-12-04: on a wide real-motion tuning clip the fit turned
+    the body round and the online tracker kept it turned for 65 frames; benchmarks/README.md,
+    "Where 1467 turns round, located"). Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -366,6 +375,11 @@ class TrackerConfig(eqx.Module):
             raise ValueError(
                 "TrackerConfig: far_side_2d and far_side_bound are two treatments of the same "
                 "landmarks; set one of them, got both True"
+            )
+        if not isinstance(self.reinit_check_fit, bool):
+            raise ValueError(
+                f"TrackerConfig.reinit_check_fit must be True or False, got "
+                f"{self.reinit_check_fit!r}"
             )
         n = self.reinit_keep_facing
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:

@@ -1112,17 +1112,21 @@ class Tracker:
                 allow_partial=not self._ever_initialized,
             )  # fmt: skip
 
-        p0 = start(lm)
-        if p0 is not None and self._turned_since_drop(p0, kp, conf):
+        def flip_start() -> None:
             # Read as facing away right after a loss: a detector's whole-body swap, not a
             # person turned round unseen. Start on the landmarks with left and right exchanged
             # (and, online, go on relabelling them until the labelling sees the swap end).
+            self.reinit_flip_frames += (max(self._frames_seen - 1, 0),)
+            if self._labeller is not None and self.mode == "online":
+                self._labeller.reset(first=np.ones(len(self.exchanged), bool))
+
+        p0 = start(lm)
+        flipped = p0 is not None and self._turned_since_drop(p0, kp, conf)
+        if flipped:
             lm = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
             p0 = start(lm)
             if p0 is not None:
-                self.reinit_flip_frames += (max(self._frames_seen - 1, 0),)
-                if self._labeller is not None and self.mode == "online":
-                    self._labeller.reset(first=np.ones(len(self.exchanged), bool))
+                flip_start()
         if p0 is None:
             return False
         t0 = time.perf_counter()
@@ -1133,6 +1137,21 @@ class Tracker:
         if not self._init_timed:  # the first call compiles: count it as compile time
             self.compile_s += time.perf_counter() - t0
             self._init_timed = True
+        if not flipped and self.config.reinit_check_fit and self._faces_away_from_drop(params):
+            # The start faced the lost track's way but the fit turned round, following a
+            # whole-body swap the start did not show (TrackerConfig.reinit_check_fit): the
+            # exchanged landmarks are fitted too and kept if their fit keeps the facing.
+            lm_x = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
+            p0_x = start(lm_x)
+            if p0_x is not None:
+                fit_x = initial_fit(
+                    self._init_settings, self.shape, self.intrinsics, _host_f32(p0_x), lm_x,
+                    self._key,
+                )  # fmt: skip
+                params_x = np.asarray(fit_x[0].params)
+                if np.all(np.isfinite(params_x)) and not self._faces_away_from_drop(params_x):
+                    (res, kps, keys), params = fit_x, params_x
+                    flip_start()
         if not np.all(np.isfinite(params)):
             return False
         floor = self._fit_floor(depth_m, params)
@@ -1151,6 +1170,18 @@ class Tracker:
         self._lost_run = 0
         self._ever_initialized = True
         return True
+
+    def _faces_away_from_drop(self, params: np.ndarray) -> bool:
+        """Whether ``params``, a re-initialisation at most ``config.reinit_keep_facing`` frames
+        after a track loss, faces more than 90 degrees away from the pose at the loss."""
+        if self._dropped is None or self._state is not None or self.config.reinit_keep_facing < 1:
+            return False
+        frame, before, _ = self._dropped
+        if self._frames_seen - frame > self.config.reinit_keep_facing:
+            return False
+        before = np.asarray(resolve(before).best, np.float64)
+        left_now = quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+        return bool(np.dot(left_now, quat_to_matrix(before[3:7])[:, 0]) < 0)
 
     def _turned_since_drop(self, p0: np.ndarray, kp: np.ndarray, conf: np.ndarray) -> bool:
         """Whether a re-initialisation at most ``config.reinit_keep_facing`` frames after a

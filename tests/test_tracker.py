@@ -201,6 +201,39 @@ def test_a_quick_reinitialisation_keeps_the_lost_tracks_facing(seq):
         TrackerConfig(reinit_keep_facing=-1)
 
 
+def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swapped(seq):
+    """Where the detector's whole-body swap began before the loss (the last tracked frame's
+    shoulders and hips already exchanged), the keep-facing test's 2D half cannot see it and the
+    re-initialisation turns round; with ``reinit_check_fit`` the fit's facing is checked
+    against the pose at the loss and the exchanged landmarks' fit is kept instead."""
+    flip = _tracker._BODY_FLIP
+    swapped = (seq.depth[1], seq.keypoints2d[1][flip], seq.confidence[1][flip])
+
+    def left(params):
+        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+
+    plain = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
+    assert plain.initialize(seq.depth[1], seq.keypoints2d[1], seq.confidence[1])
+    for check in (False, True):
+        config = LVM.replace(reinit_keep_facing=5, reinit_check_fit=check)
+        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        # The last tracked frame's detections: already the whole-body swap.
+        tracker._last_tracked_kp = (seq.keypoints2d[0][flip], seq.confidence[0][flip])
+        tracker._drop_track()
+        assert tracker.initialize(*swapped)
+        after = np.asarray(tracker.state.best)
+        assert tracker.reinit_flips == (1 if check else 0)
+        if check:
+            assert left(before) @ left(after) > 0.5
+            np.testing.assert_allclose(after, np.asarray(plain.state.best), atol=1e-5)
+        else:
+            assert left(before) @ left(after) < -0.5
+    with pytest.raises(ValueError, match="reinit_check_fit"):
+        TrackerConfig(reinit_check_fit=1)
+
+
 def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
     """The 2D half of the re-initialisation's facing test: a whole-body swap's shoulders and
     hips sit on the other side's last positions; a limb's swap, or a frame where neither
