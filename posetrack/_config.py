@@ -300,9 +300,10 @@ class TrackerConfig(eqx.Module):
     detector that the start's closed form did not follow, while the shoulders and hips
     already sat exchanged in the last tracked frame), the landmarks with every left/right
     pair exchanged are fitted too and kept if that fit keeps the facing (host side; one more
-    initial fit there). Opt-in (2026-12-04: on a wide real-motion tuning clip the fit turned
-    the body round and the online tracker kept it turned for 65 frames; benchmarks/README.md,
-    "Where 1467 turns round, located"). Not in the paper."""
+    initial fit there). On a wide real-motion tuning clip the fit turned the body round and
+    the online tracker kept it turned for 65 frames (263 mm; with this, 74 mm). Opt-in: its
+    screens (2026-12-05, 56 fresh tuning runs per mode) changed no run, the event being rare
+    (benchmarks/README.md, "Where 1467 turns round, located"). Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
