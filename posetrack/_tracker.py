@@ -1189,17 +1189,10 @@ class Tracker:
         away from the pose at the loss, and this frame's keypoints ``kp`` are the last tracked
         frame's with left and right exchanged (:func:`exchanged_since`). Both: a track lost
         because it had turned round itself (a wrong first pose) is not kept turned."""
-        if self._dropped is None or self._state is not None or self.config.reinit_keep_facing < 1:
+        if not self._faces_away_from_drop(p0):
             return False
-        frame, before, last = self._dropped
-        if last is None or self._frames_seen - frame > self.config.reinit_keep_facing:
-            return False
-        if not exchanged_since(*last, kp, conf):
-            return False
-        before = np.asarray(resolve(before).best, np.float64)
-        left_now = quat_to_matrix(np.asarray(p0[3:7], np.float64))[:, 0]
-        left_before = quat_to_matrix(before[3:7])[:, 0]
-        return bool(np.dot(left_now, left_before) < 0)
+        last = self._dropped[2]
+        return last is not None and bool(exchanged_since(*last, kp, conf))
 
     def _fit_floor(self, depth_m: np.ndarray, params: np.ndarray) -> tuple[float, ...]:
         """The floor plane, or ``NO_FLOOR`` when there is none we can trust.
