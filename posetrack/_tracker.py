@@ -408,6 +408,11 @@ class _Prepared:
     updated, labeller, duplicate filter, frames seen); restored if the track is dropped here."""
 
 
+def _body_flipped(lm: Landmarks) -> Landmarks:
+    """``lm`` (host arrays) with every left/right keypoint pair exchanged."""
+    return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
+
+
 def _frame_delta(est: FrameEstimate | None, status: int) -> float:
     """The Delta of a frame's pose (NaN where the frame has none), as the arbitration sums."""
     return float(est.delta) if est is not None and status != NO_OBSERVATION else float("nan")
@@ -1123,7 +1128,7 @@ class Tracker:
         p0 = start(lm)
         flipped = p0 is not None and self._turned_since_drop(p0, kp, conf)
         if flipped:
-            lm = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
+            lm = _body_flipped(lm)
             p0 = start(lm)
             if p0 is not None:
                 flip_start()
@@ -1141,7 +1146,7 @@ class Tracker:
             # The start faced the lost track's way but the fit turned round, following a
             # whole-body swap the start did not show (TrackerConfig.reinit_check_fit): the
             # exchanged landmarks are fitted too and kept if their fit keeps the facing.
-            lm_x = jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
+            lm_x = _body_flipped(lm)
             p0_x = start(lm_x)
             if p0_x is not None:
                 fit_x = initial_fit(
@@ -1299,15 +1304,9 @@ class Tracker:
                 for g in np.flatnonzero(new):
                     only = np.zeros_like(new)
                     only[g] = True
-                    self._restore_online(before)
-                    self._veto = self._veto | (new & ~only)
-                    row = self._judged_row(self._update_once(depth, kp2d, conf))
-                    self._since_judged[only] = 0
-                    arb.readings.append(_Reading(only, _Branch(self._online_snapshot(), [row])))
-            self._restore_online(before)
-            self._veto = self._veto | new
-            out = self._update_once(depth, kp2d, conf)
-            arb.detected = _Branch(self._online_snapshot(), [self._judged_row(out)])
+                    branch = self._judged_branch(before, new, new & ~only, depth, kp2d, conf)
+                    arb.readings.append(_Reading(only, branch))
+            arb.detected = self._judged_branch(before, new, new, depth, kp2d, conf)
             self._arbitration = arb
         else:
             for reading in [*arb.readings, None]:
@@ -1332,6 +1331,18 @@ class Tracker:
             self._labeller.anchor(kept_groups, self.sides.online_anchor)
             self.exchanged = self.exchanged | kept_groups
         return keep.out
+
+    def _judged_branch(
+        self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
+    ) -> _Branch:
+        """A judged stretch's reading that starts from ``before`` (an online snapshot) with
+        the ``vetoed`` groups of the newly exchanged ``new`` kept as detected: its first
+        frame tracked, the groups of ``new`` judged from here."""
+        self._restore_online(before)
+        self._veto = self._veto | vetoed
+        row = self._judged_row(self._update_once(depth, kp2d, conf))
+        self._since_judged[new] = 0
+        return _Branch(self._online_snapshot(), [row])
 
     def _judged_row(self, out: tuple) -> tuple:
         """A judged frame's row of a :class:`_Branch`: what the update returned, with the
