@@ -52,7 +52,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 ``followX`` (``FollowSettings(depth_band=X)``, metres), ``grouparb``
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
 (``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
-(``TrackerConfig(reinit_check_fit=True)``),
+(``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
+``reinit_check_frames=N``: the check looks N frames after a loss),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
@@ -225,6 +226,9 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"sides": pt.SideSettings.for_mode(mode, online_groups=True)}
     if variant == "checkfit":
         return {"config": pt.TrackerConfig(reinit_check_fit=True)}
+    if variant.startswith("checkfit") and variant[8:].isdigit():
+        frames = int(variant[8:])
+        return {"config": pt.TrackerConfig(reinit_check_fit=True, reinit_check_frames=frames)}
     if variant == "bothways":
         return {"motion": pt.SmoothSettings(both_ways=True)}
     if variant == "crossfade":
@@ -299,8 +303,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'grouparb', 'ogroups', 'checkfit', "
-        "'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', 'prepassN[r|g]' (N >= 10), "
-        "'gateX', 'sides:G+G...'"
+        "'checkfitN', 'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
+        "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
 
 

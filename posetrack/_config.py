@@ -304,6 +304,14 @@ class TrackerConfig(eqx.Module):
     the online tracker kept it turned for 65 frames (263 mm; with this, 74 mm). Opt-in: its
     screens (2026-12-05, 56 fresh tuning runs per mode) changed no run, the event being rare
     (benchmarks/README.md, "Where 1467 turns round, located"). Not in the paper."""
+    reinit_check_frames: int | None = eqx.field(default=None, static=True)
+    """With :attr:`reinit_check_fit`: how many frames after a track loss its check applies
+    (``None``: :attr:`reinit_keep_facing`'s). The start's flip needs this frame's shoulders
+    and hips to sit on the last tracked frame's other side, which fades as the person moves
+    while lost; the check asks more of the frame (the start kept the facing, the fit turned
+    round, the exchanged fit keeps it) and so can look further back. On a wide real-motion
+    tuning clip lost for 10 frames (1531) the fit turned round after the restart and stayed
+    so for 35 frames."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -382,11 +390,12 @@ class TrackerConfig(eqx.Module):
                 f"TrackerConfig.reinit_check_fit must be True or False, got "
                 f"{self.reinit_check_fit!r}"
             )
-        n = self.reinit_keep_facing
-        if isinstance(n, bool) or not isinstance(n, int) or n < 0:
-            raise ValueError(
-                f"TrackerConfig.reinit_keep_facing must be an int >= 0 (frames), got {n!r}"
-            )
+        for name in ("reinit_keep_facing", "reinit_check_frames"):
+            n = getattr(self, name)
+            if n is None and name == "reinit_check_frames":
+                continue
+            if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+                raise ValueError(f"TrackerConfig.{name} must be an int >= 0 (frames), got {n!r}")
         if self.score_width < 8 or self.score_height < 8:
             raise ValueError(
                 f"TrackerConfig: score size must be at least 8x8, got "

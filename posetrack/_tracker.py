@@ -1142,7 +1142,13 @@ class Tracker:
         if not self._init_timed:  # the first call compiles: count it as compile time
             self.compile_s += time.perf_counter() - t0
             self._init_timed = True
-        if not flipped and self.config.reinit_check_fit and self._faces_away_from_drop(params):
+        check = self.config.reinit_check_frames
+        check = self.config.reinit_keep_facing if check is None else check
+        if (
+            not flipped
+            and self.config.reinit_check_fit
+            and self._faces_away_from_drop(params, check)
+        ):
             # The start faced the lost track's way but the fit turned round, following a
             # whole-body swap the start did not show (TrackerConfig.reinit_check_fit): the
             # exchanged landmarks are fitted too and kept if their fit keeps the facing.
@@ -1154,7 +1160,9 @@ class Tracker:
                     self._key,
                 )  # fmt: skip
                 params_x = np.asarray(fit_x[0].params)
-                if np.all(np.isfinite(params_x)) and not self._faces_away_from_drop(params_x):
+                if np.all(np.isfinite(params_x)) and not self._faces_away_from_drop(
+                    params_x, check
+                ):
                     (res, kps, keys), params = fit_x, params_x
                     flip_start()
         if not np.all(np.isfinite(params)):
@@ -1176,13 +1184,15 @@ class Tracker:
         self._ever_initialized = True
         return True
 
-    def _faces_away_from_drop(self, params: np.ndarray) -> bool:
-        """Whether ``params``, a re-initialisation at most ``config.reinit_keep_facing`` frames
-        after a track loss, faces more than 90 degrees away from the pose at the loss."""
-        if self._dropped is None or self._state is not None or self.config.reinit_keep_facing < 1:
+    def _faces_away_from_drop(self, params: np.ndarray, window: int | None = None) -> bool:
+        """Whether ``params``, a re-initialisation at most ``window`` frames (default
+        ``config.reinit_keep_facing``) after a track loss, faces more than 90 degrees away
+        from the pose at the loss."""
+        window = self.config.reinit_keep_facing if window is None else window
+        if self._dropped is None or self._state is not None or window < 1:
             return False
         frame, before, _ = self._dropped
-        if self._frames_seen - frame > self.config.reinit_keep_facing:
+        if self._frames_seen - frame > window:
             return False
         before = np.asarray(resolve(before).best, np.float64)
         left_now = quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
