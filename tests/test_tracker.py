@@ -230,8 +230,27 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
             np.testing.assert_allclose(after, np.asarray(plain.state.best), atol=1e-5)
         else:
             assert left(before) @ left(after) < -0.5
+    # The restart 8 frames after the loss: past reinit_keep_facing's 5, so the check looks only
+    # with its own, longer window (reinit_check_frames).
+    for frames, keeps in ((None, False), (15, True)):
+        config = LVM.replace(
+            reinit_keep_facing=5, reinit_check_fit=True, reinit_check_frames=frames
+        )
+        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        tracker._last_tracked_kp = (seq.keypoints2d[0][flip], seq.confidence[0][flip])
+        tracker._drop_track()
+        tracker._frames_seen += 8
+        assert tracker.initialize(*swapped)
+        facing = left(before) @ left(np.asarray(tracker.state.best))
+        assert (facing > 0.5) if keeps else (facing < -0.5), (frames, facing)
+        assert tracker.reinit_flips == int(keeps)
     with pytest.raises(ValueError, match="reinit_check_fit"):
         TrackerConfig(reinit_check_fit=1)
+    for bad in (-1, True, 2.0):
+        with pytest.raises(ValueError, match="reinit_check_frames"):
+            TrackerConfig(reinit_check_frames=bad)
 
 
 def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
