@@ -311,7 +311,10 @@ class TrackerConfig(eqx.Module):
     while lost; the check asks more of the frame (the start kept the facing, the fit turned
     round, the exchanged fit keeps it) and so can look further back. On a wide real-motion
     tuning clip lost for 10 frames (1531) the fit turned round after the restart and stayed
-    so for 35 frames."""
+    so for 35 frames (127 mm; with 15 frames, 106). 15 failed its screen (2026-12-05, 110
+    fresh tuning runs online: 5 changed, D -0.63 mm, but one lost clip 24 mm worse where the
+    rule allowed 20; benchmarks/README.md, "A longer look back for the re-initialisation's
+    fit check"), so it is not the default."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
