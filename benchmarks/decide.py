@@ -34,6 +34,7 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
+``farboundS`` (the same with ``bound_turn_sin=S``),
 ``alllm-norefit`` (that and no
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
@@ -207,6 +208,12 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(far_side_2d=True)}
     if variant == "farbound":
         return {"config": pt.TrackerConfig(far_side_bound=True)}
+    if variant.startswith("farbound"):  # farboundS: the bound from a turn of sine S
+        try:
+            turn = float(variant[len("farbound") :])
+            return {"config": pt.TrackerConfig(far_side_bound=True, bound_turn_sin=turn)}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     for prefix, (kwarg, make, field) in _NUMBERED.items():
         if variant.startswith(prefix):
             try:
@@ -303,7 +310,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'grouparb', 'ogroups', 'checkfit', "
-        "'checkfitN', 'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
+        "'checkfitN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
 
