@@ -147,7 +147,8 @@ def rule_table(runs: list[dict]) -> dict:
                     continue
                 keep = rule(dex, das, np.asarray(s["read_exchanged"])) < 0
                 keep &= np.isfinite(dex).sum() >= np.isfinite(das).sum()
-                chosen, other = (eex[ok].sum(), eas[ok].sum())[:: 1 if keep else -1]
+                ex, ad = eex[ok].sum(), eas[ok].sum()
+                chosen, other = (ex, ad) if keep else (ad, ex)
                 lost += max(chosen - other, 0.0)
                 wrong += chosen - other > 10.0 * ok.sum()
         table[name] = {"lost_m_frames": lost / 1000, "lost_mm_of_mean_D": lost / frames,

@@ -1125,6 +1125,11 @@ class Tracker:
             if self._labeller is not None and self.mode == "online":
                 self._labeller.reset(first=np.ones(len(self.exchanged), bool))
 
+        def fit(p0, lm):
+            return initial_fit(
+                self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
+            )
+
         p0 = start(lm)
         flipped = p0 is not None and self._turned_since_drop(p0, kp, conf)
         if flipped:
@@ -1135,15 +1140,12 @@ class Tracker:
         if p0 is None:
             return False
         t0 = time.perf_counter()
-        res, kps, keys = initial_fit(
-            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
-        )
+        res, kps, keys = fit(p0, lm)
         params = np.asarray(res.params)
         if not self._init_timed:  # the first call compiles: count it as compile time
             self.compile_s += time.perf_counter() - t0
             self._init_timed = True
-        check = self.config.reinit_check_frames
-        check = self.config.reinit_keep_facing if check is None else check
+        check = self.config.reinit_check_frames  # None: reinit_keep_facing's window
         if (
             not flipped
             and self.config.reinit_check_fit
@@ -1155,10 +1157,7 @@ class Tracker:
             lm_x = _body_flipped(lm)
             p0_x = start(lm_x)
             if p0_x is not None:
-                fit_x = initial_fit(
-                    self._init_settings, self.shape, self.intrinsics, _host_f32(p0_x), lm_x,
-                    self._key,
-                )  # fmt: skip
+                fit_x = fit(p0_x, lm_x)
                 params_x = np.asarray(fit_x[0].params)
                 if np.all(np.isfinite(params_x)) and not self._faces_away_from_drop(
                     params_x, check

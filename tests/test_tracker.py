@@ -212,17 +212,23 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
     def left(params):
         return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
 
-    plain = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
-    assert plain.initialize(seq.depth[1], seq.keypoints2d[1], seq.confidence[1])
-    for check in (False, True):
-        config = LVM.replace(reinit_keep_facing=5, reinit_check_fit=check)
+    def restart(later: int = 0, **changes):
+        """Track frame 0, lose it (its detections already the whole-body swap), restart
+        ``later`` frames on from the swapped frame 1; the tracker and its pose before."""
+        config = LVM.replace(reinit_keep_facing=5, **changes)
         tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
         assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
         before = np.asarray(tracker.state.best)
-        # The last tracked frame's detections: already the whole-body swap.
         tracker._last_tracked_kp = (seq.keypoints2d[0][flip], seq.confidence[0][flip])
         tracker._drop_track()
+        tracker._frames_seen += later
         assert tracker.initialize(*swapped)
+        return tracker, before
+
+    plain = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
+    assert plain.initialize(seq.depth[1], seq.keypoints2d[1], seq.confidence[1])
+    for check in (False, True):
+        tracker, before = restart(reinit_check_fit=check)
         after = np.asarray(tracker.state.best)
         assert tracker.reinit_flips == (1 if check else 0)
         if check:
@@ -233,16 +239,7 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
     # The restart 8 frames after the loss: past reinit_keep_facing's 5, so the check looks only
     # with its own, longer window (reinit_check_frames).
     for frames, keeps in ((None, False), (15, True)):
-        config = LVM.replace(
-            reinit_keep_facing=5, reinit_check_fit=True, reinit_check_frames=frames
-        )
-        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
-        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
-        before = np.asarray(tracker.state.best)
-        tracker._last_tracked_kp = (seq.keypoints2d[0][flip], seq.confidence[0][flip])
-        tracker._drop_track()
-        tracker._frames_seen += 8
-        assert tracker.initialize(*swapped)
+        tracker, before = restart(8, reinit_check_fit=True, reinit_check_frames=frames)
         facing = left(before) @ left(np.asarray(tracker.state.best))
         assert (facing > 0.5) if keeps else (facing < -0.5), (frames, facing)
         assert tracker.reinit_flips == int(keeps)
