@@ -43,7 +43,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import posetrack as pt  # noqa: E402
-from posetrack._tracker import check_depth, step  # noqa: E402
+from posetrack._inputs import check_depth  # noqa: E402
+from posetrack._tracker import step  # noqa: E402
 from posetrack.app import machine_info  # noqa: E402
 
 

@@ -104,6 +104,7 @@ from posetrack import SmoothSettings, TrackerConfig
 from posetrack._body import JOINT_PARENTS, KEYPOINT_FRAMES, normalize_params
 from posetrack._depthobs import tracker_landmarks, tracker_observation
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose, fit_problem, fit_residuals
+from posetrack._inputs import check_frame
 from posetrack._residuals import ResidualSettings, landmark_residuals
 from posetrack._select import landmark_subsets
 from posetrack._so3 import quat_to_matrix
@@ -113,7 +114,7 @@ from posetrack._step import (
     reseed_hypotheses,
     score_hypotheses,
 )
-from posetrack._tracker import Tracker, check_frame, step
+from posetrack._tracker import Tracker, step
 from posetrack.app import machine_info
 from posetrack.io import atomic_write_text
 

@@ -34,9 +34,9 @@ import posetrack as pt
 from posetrack import TrackerConfig
 from posetrack._depthobs import tracker_landmarks, tracker_observation
 from posetrack._fit import FitSettings, fit_hypotheses
+from posetrack._inputs import check_frame
 from posetrack._render import render_and_score
 from posetrack._step import hypothesis_capsules
-from posetrack._tracker import check_frame
 from posetrack.app import machine_info
 from posetrack.io import atomic_write_text
 

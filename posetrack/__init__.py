@@ -6,7 +6,8 @@ Subsets of Body Keypoints". The core, one module per stage:
     _body (model, FK) -> _geometry (body-derived constants) -> _camera -> _observe (lifting)
     -> _residuals (Eq. 1) -> _fit (LM) -> _score (Eq. 3) -> _render (rasteriser, render+score)
     -> _depthobs (observation preprocessing) -> _select (landmark subsets) -> _config
-    -> _step (one batched frame) -> _tracker (sequences) -> _world (output frames); _metrics,
+    -> _step (one batched frame) -> _tracker (sequences; inputs checked by _inputs, results
+    in _result) -> _world (output frames); _metrics,
     _init, _refine beside them;
     _associate (which person) and _sides (which side) relabel detections before the tracker.
 
@@ -23,6 +24,8 @@ from ._associate import choose_person as choose_person
 from ._associate import detection_score as detection_score
 from ._associate import lift_candidates as lift_candidates
 from ._associate import match_costs as match_costs
+from ._batcher import ChunkBatcher as ChunkBatcher
+from ._batcher import StepBatcher as StepBatcher
 from ._body import BODY_JOINTS as BODY_JOINTS
 from ._body import KEYPOINT_NAMES as KEYPOINT_NAMES
 from ._body import NUM_PARAMS as NUM_PARAMS
@@ -48,6 +51,8 @@ from ._fit import fit_hypotheses as fit_hypotheses
 from ._fit import fit_pose as fit_pose
 from ._init import estimate_shape as estimate_shape
 from ._init import initial_pose as initial_pose
+from ._limbs import LIMB_NAMES as LIMB_NAMES
+from ._many import track_many as track_many
 from ._metrics import LIMB_PAIRS as LIMB_PAIRS
 from ._metrics import Accuracy as Accuracy
 from ._metrics import acceleration_error as acceleration_error
@@ -62,7 +67,6 @@ from ._metrics import naive_lifting as naive_lifting
 from ._metrics import success_curve as success_curve
 from ._metrics import swapped_limb_frames as swapped_limb_frames
 from ._metrics import swapped_limbs as swapped_limbs
-from ._many import track_many as track_many
 from ._observe import Landmarks as Landmarks
 from ._observe import body_depth_limit as body_depth_limit
 from ._observe import confident_depth as confident_depth
@@ -75,6 +79,9 @@ from ._render import render_and_score as render_and_score
 from ._render import render_depth as render_depth
 from ._render import render_depth_batch as render_depth_batch
 from ._residuals import ResidualSettings as ResidualSettings
+from ._result import JOINT_STATES as JOINT_STATES
+from ._result import STATUS_NAMES as STATUS_NAMES
+from ._result import TrackResult as TrackResult
 from ._score import delta as delta
 from ._score import delta_batch as delta_batch
 from ._shapefit import ShapeFitSettings as ShapeFitSettings
@@ -85,9 +92,6 @@ from ._sides import SideSettings as SideSettings
 from ._sides import arbitration_spans as arbitration_spans
 from ._sides import prefer_exchanged as prefer_exchanged
 from ._sides import two_sided_exchanged as two_sided_exchanged
-from ._batcher import ChunkBatcher as ChunkBatcher
-from ._batcher import StepBatcher as StepBatcher
-from ._limbs import LIMB_NAMES as LIMB_NAMES
 from ._smooth import SmoothSettings as SmoothSettings
 from ._smooth import smooth_window as smooth_window
 from ._step import FrameEstimate as FrameEstimate
@@ -95,14 +99,11 @@ from ._step import TrackState as TrackState
 from ._step import tracker_step as tracker_step
 from ._tracker import LOST as LOST
 from ._tracker import MODES as MODES
+from ._tracker import NO_OBSERVATION as NO_OBSERVATION
 from ._tracker import ONLINE_LAG as ONLINE_LAG
 from ._tracker import RUN_CHUNK as RUN_CHUNK
-from ._tracker import NO_OBSERVATION as NO_OBSERVATION
-from ._tracker import JOINT_STATES as JOINT_STATES
-from ._tracker import STATUS_NAMES as STATUS_NAMES
 from ._tracker import TRACKED as TRACKED
 from ._tracker import Tracker as Tracker
-from ._tracker import TrackResult as TrackResult
 from ._tracker import lift_sequence as lift_sequence
 from ._tracker import track as track
 from ._world import FRAMES as FRAMES

@@ -31,7 +31,8 @@ from ._batcher import Batcher, ChunkBatcher, StepBatcher
 from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._programs import serial_execution
-from ._tracker import ProgressCallback, Tracker, TrackResult
+from ._result import TrackResult
+from ._tracker import ProgressCallback, Tracker
 
 SequenceInput = Any
 """One sequence for :func:`track_many`: a :class:`posetrack.io.Recording`, a tuple

@@ -1,4 +1,7 @@
-"""The host-side tracker: input checks, body shape, (re-)initialisation, track loss.
+"""The host-side tracker: body shape, (re-)initialisation, track loss, whole sequences.
+
+Inputs are checked by :mod:`posetrack._inputs`; a sequence's result is
+:class:`posetrack._result.TrackResult`.
 
 The per-frame math is :func:`posetrack._step.tracker_step`, one jitted call per frame. This
 module keeps what is naturally sequential and rare: estimating the body dimensions from the
@@ -40,11 +43,12 @@ from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
+from ._inputs import check_depth, check_frame, check_people
 from ._observe import Landmarks, observed_share
+from ._result import TrackResult, keypoint_confidence
 from ._programs import (
     Program, device_f32, device_key, prepare_in_background, prepare_now, program,
 )
-from .io._export import JOINT_STATE_NAMES
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import (
     SideLabeller,
@@ -81,11 +85,6 @@ _NO_POSE = body.facing_camera_params_np(2.5)
 
 #: Fewer tracked frames than this and ``refine`` is skipped (the shape stays as estimated).
 _MIN_REFINE_FRAMES = 3
-
-#: The frame status codes' names (also the strings written to files).
-STATUS_NAMES = ("tracked", "lost", "no_observation")
-#: Names of :attr:`TrackResult.joint_state`'s values (also written to ``poses.npz``).
-JOINT_STATES = JOINT_STATE_NAMES
 
 #: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
 #: causal motion model with a fixed lag, or each frame on its own (the paper).
@@ -143,199 +142,12 @@ def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks
     return res, body.keypoints(shape, res.params), (keys[0], keys[1])
 
 
-@dataclasses.dataclass(frozen=True)
-class TrackResult:
-    """A tracked sequence (NumPy arrays over frames T)."""
-
-    keypoints3d: np.ndarray
-    """(T, 18, 3) metres, camera frame, COCO-18; NaN where not estimated (before the first
-    initialisation, and after a track loss until re-initialisation succeeds)."""
-    params: np.ndarray
-    """(T, 43) pose parameters (never NaN: frames without an estimate repeat the nearest one)."""
-    delta: np.ndarray
-    """(T,) Delta (Eq. (3)) of the tracker's per-frame pose (offline: before the motion
-    model, of the forward pass); NaN where not estimated."""
-    status: np.ndarray
-    """(T,) int8: 0 tracked, 1 lost, 2 no observation (``STATUS_NAMES``)."""
-    confidence: np.ndarray
-    """(T, 18) per-keypoint confidence in [0, 1] (see :func:`keypoint_confidence`)."""
-    landmarks3d: np.ndarray
-    """(T, 18, 3) lifted landmarks O_i (zeros where F_i is false, except the depth bounds of
-    ``TrackerConfig(far_side_bound=True)``, :func:`posetrack._observe.as_bounds`)."""
-    has_depth: np.ndarray
-    """(T, 18) F_i flags."""
-    detected: np.ndarray
-    """(T, 18) f_i flags."""
-    shape: body.BodyShape
-    """Body dimensions used."""
-    config: TrackerConfig
-    """The tracker's configuration."""
-    compile_s: float
-    """Seconds spent compiling (first calls of the jitted functions)."""
-    ms_per_frame: float
-    """Median wall time of a steady-state tracker step, milliseconds."""
-    person_index: np.ndarray
-    """(T,) int: index into each frame's list of people of the detection the tracker followed;
-    -1 where none was (nobody detected, or only other people: the frame is then 'lost')."""
-    num_people: np.ndarray
-    """(T,) int: people detected in each frame (with at least one keypoint)."""
-    per_frame_keypoints3d: np.ndarray | None = None
-    """(T, 18, 3) the per-frame estimates before the motion model (``None`` when no motion
-    model ran: then they are ``keypoints3d``); offline both ways
-    (:attr:`SmoothSettings.both_ways`), the forward pass's (the backward pass is fused in
-    after smoothing)."""
-    exchanged: np.ndarray | None = None
-    """(T, groups) bool: where the detector's left and right keypoints of each
-    ``sides.groups`` group (default arms, legs) were exchanged back before fitting
-    (:class:`SideSettings`); ``None`` when no relabelling ran (``sides=None``; online and
-    per-frame by default)."""
-    interpolated: np.ndarray | None = None
-    """(T, 4) bool, offline only: where the motion model started a limb (right arm, left arm,
-    right leg, left leg: :data:`posetrack.LIMB_NAMES`) from its neighbours' pose because
-    the per-frame pose had followed a doubtful keypoint jump (:class:`SmoothSettings`
-    ``outlier_distance``); a place to look at the detections. ``None`` when no offline
-    smoothing ran."""
-    floor: np.ndarray | None = None
-    """(4,) the first floor plane the tracker found in this recording, ``(nx, ny, nz, d)``
-    in the camera frame with ``n @ p + d`` a point's height (metres); ``None`` when none was
-    found (or ``use_floor`` is off). :func:`posetrack.floor_frame` builds the world frame on it."""
-    mode: str = "per-frame"
-    """How ``keypoints3d`` was made: "offline" (smoothed over the whole recording), "online"
-    (causal, with a fixed lag) or "per-frame" (each frame on its own, the paper's way)."""
-    lag: int = 0
-    """Online: the lag, frames (each pose used the frames up to ``lag`` after it); 0
-    otherwise."""
-
-    @property
-    def others_ignored(self) -> int:
-        """Frames in which at least one detected person other than the followed one was
-        ignored."""
-        return int(np.sum(self.num_people - (self.person_index >= 0) > 0))
-
-    @property
-    def status_names(self) -> list[str]:
-        return [STATUS_NAMES[s] for s in self.status]
-
-    @property
-    def joint_state(self) -> np.ndarray:
-        """(T, 18) int8 state of each joint (:data:`JOINT_STATES`), in the spirit of Azure
-        Kinect's confidence levels: 0 not estimated (NaN keypoint), 1 predicted (estimated but
-        not detected in 2D this frame: placed by the rest of the body, the previous frames and,
-        offline, the motion model), 2 observed (detected in 2D this frame, with or without
-        depth)."""
-        estimated = np.isfinite(self.keypoints3d).all(axis=-1)
-        seen = np.asarray(self.detected, bool) & (self.status != NO_OBSERVATION)[:, None]
-        return np.where(estimated, np.where(seen, 2, 1), 0).astype(np.int8)
-
-
 def _keep_best_observed(kept: dict, stretch: int, n3d: int, entry) -> None:
     """The body-shape refinement's frame choice: per stretch of frames, the tracked frame with
     the most 3D landmarks. ``kept[stretch] = (n3d, *entry())`` when ``n3d`` beats the kept
     one (``entry`` is only called then)."""
     if n3d > kept.get(stretch, (-1,))[0]:
         kept[stretch] = (n3d, *entry())
-
-
-def keypoint_confidence(est: FrameEstimate) -> np.ndarray:
-    """Per-keypoint confidence in [0, 1] of one frame's estimate.
-
-    ``support * agreement``: support is 1 for a keypoint whose 3D landmark the selected
-    hypothesis used, 0.7 if it was only detected in 2D, 0.3 if it was not observed (the pose
-    there is inferred from the rest of the body and the previous frame); agreement is
-    ``exp(-(spread / 5 cm)^2)`` with spread the median over all N hypotheses (the selected one
-    included) of their keypoint's distance from the selected one (1 for LVM). In frames flagged
-    lost, ``Tracker.run`` halves it. It is a relative indicator for weighting and display, not
-    a calibrated probability.
-    """
-    used = np.asarray(est.used3d)[int(est.best)]
-    lm = est.landmarks
-    support = np.where(used, 1.0, np.where(np.asarray(lm.detected), 0.7, 0.3))
-    agreement = np.exp(-((np.asarray(est.spread) / 0.05) ** 2))
-    return (support * agreement).astype(np.float32)
-
-
-def check_frame(
-    intrinsics: Intrinsics, depth, keypoints2d, confidence, depth_scale: float, where: str
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Validate one frame at the public boundary and convert it.
-
-    Args:
-        intrinsics: the depth camera (its image size is checked against ``depth``).
-        depth: (H, W) uint16 in sensor units, or float metres (0 / NaN invalid).
-        keypoints2d: (18, 2) COCO-18 pixels; confidence: (18,), 0 = missing.
-        depth_scale: sensor units per metre (uint16 depth only).
-        where: what to call the frame in error messages.
-
-    Returns:
-        ``(depth_m, keypoints2d, confidence)`` as float32 NumPy arrays; non-finite keypoints
-        become missing (confidence 0).
-
-    Raises:
-        ValueError: naming ``where``, the field and the offending shape or dtype.
-    """
-    depth_m = check_depth(intrinsics, depth, depth_scale, where)
-    kp = np.asarray(keypoints2d, dtype=np.float64) if keypoints2d is not None else None
-    if kp is None or kp.shape != (18, 2):
-        raise ValueError(
-            f"{where}: keypoints2d must have shape (18, 2) (COCO-18 pixels), got "
-            f"{None if kp is None else kp.shape}"
-        )
-    conf = np.asarray(confidence, dtype=np.float64) if confidence is not None else None
-    if conf is None or conf.shape != (18,):
-        raise ValueError(
-            f"{where}: confidence must have shape (18,), got {None if conf is None else conf.shape}"
-        )
-    kp, conf = check_people(kp, conf, where)
-    return depth_m, kp[0], conf[0]
-
-
-def check_people(keypoints2d, confidence, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Validate one frame's detections: one person ``(18, 2)`` / ``(18,)`` or P people
-    ``(P, 18, 2)`` / ``(P, 18)`` (P may be 0). Returns ``(P, 18, 2)``, ``(P, 18)`` float32;
-    non-finite keypoints become missing.
-
-    Raises:
-        ValueError: naming ``where``, the field and the offending shape.
-    """
-    kp = np.asarray(keypoints2d, dtype=np.float64) if keypoints2d is not None else None
-    conf = np.asarray(confidence, dtype=np.float64) if confidence is not None else None
-    if kp is None or kp.ndim not in (2, 3) or kp.shape[-2:] != (18, 2):
-        raise ValueError(
-            f"{where}: keypoints2d must have shape (18, 2) for one person or (P, 18, 2) for P "
-            f"people (COCO-18 pixels), got {None if kp is None else kp.shape}"
-        )
-    if conf is None or conf.shape != kp.shape[:-1]:
-        raise ValueError(
-            f"{where}: confidence must have shape {kp.shape[:-1]} to match keypoints2d "
-            f"{kp.shape}, got {None if conf is None else conf.shape}"
-        )
-    kp, conf = kp.reshape(-1, 18, 2), conf.reshape(-1, 18)
-    bad = ~np.isfinite(kp).all(axis=-1) | ~np.isfinite(conf)
-    conf = np.where(bad, 0.0, conf)  # non-finite keypoints are missing, never NaN poses
-    kp = np.where(bad[..., None], 0.0, kp)
-    return kp.astype(np.float32), conf.astype(np.float32)
-
-
-def check_depth(intrinsics: Intrinsics, depth, depth_scale: float, where: str) -> np.ndarray:
-    """Validate one depth image and convert it to float32 metres (see :func:`check_frame`)."""
-    depth = np.asarray(depth)
-    if depth.size == 0:
-        raise ValueError(f"{where}: depth is empty (shape {depth.shape})")
-    if depth.ndim != 2:
-        raise ValueError(f"{where}: depth must be a 2D (H, W) array, got shape {depth.shape}")
-    if depth.shape != intrinsics.shape:
-        raise ValueError(
-            f"{where}: depth shape {depth.shape} does not match the intrinsics' image "
-            f"{intrinsics.height}x{intrinsics.width} (H x W)"
-        )
-    if depth.dtype == np.uint16:
-        return depth.astype(np.float32) / np.float32(depth_scale)
-    if np.issubdtype(depth.dtype, np.floating):
-        return depth.astype(np.float32)
-    raise ValueError(
-        f"{where}: depth dtype must be uint16 (sensor units, see depth_scale) or float "
-        f"(metres), got {depth.dtype}"
-    )
 
 
 @dataclasses.dataclass

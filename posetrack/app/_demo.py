@@ -16,7 +16,8 @@ import numpy as np
 from .._camera import project
 from .._config import TrackerConfig
 from .._metrics import accuracy, naive_lifting
-from .._tracker import Tracker, TrackResult, lift_sequence
+from .._result import TrackResult
+from .._tracker import Tracker, lift_sequence
 from ._machine import machine_summary
 from ._progress import ProgressBar
 from ._viz import (

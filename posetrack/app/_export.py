@@ -31,7 +31,7 @@ import numpy as np
 
 from .._camera import Intrinsics
 from .._depthobs import NO_FLOOR
-from .._tracker import JOINT_STATES, STATUS_NAMES, TrackResult
+from .._result import JOINT_STATES, STATUS_NAMES, TrackResult
 from .._world import FRAMES, WorldFrame, camera_frame, floor_frame, transform_params
 from ..io import (
     COCO18_NAMES,

@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 
 from .._camera import Intrinsics
-from .._tracker import STATUS_NAMES
+from .._result import STATUS_NAMES
 from ._panel import PANELS, SkeletonPanel
 from ._progress import Progress
 from ._viz import CYAN, STATUS_COLORS, colorize_depth, draw_skeleton, put_label, write_gif
