@@ -50,7 +50,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
 (``TrackerConfig(lift_band=M)``, metres), ``agreeX`` (``TrackerConfig(lost_agreement=X)``),
-``followX`` (``FollowSettings(depth_band=X)``, metres), ``grouparb``
+``followX`` (``FollowSettings(depth_band=X)``, metres), ``aloneN`` (the mode's
+``FollowSettings`` with ``alone_frames=N``), ``grouparb``
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
 (``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
@@ -214,6 +215,11 @@ def settings(variant: str, mode: str = "offline") -> dict:
             return {"config": pt.TrackerConfig(far_side_bound=True, bound_turn_sin=turn)}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("alone"):  # aloneN: the mode's follower, alone_frames=N
+        try:
+            return {"follow": pt.FollowSettings.for_mode(mode, alone_frames=int(variant[5:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     for prefix, (kwarg, make, field) in _NUMBERED.items():
         if variant.startswith(prefix):
             try:
@@ -309,7 +315,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'agreeX', 'followX', 'grouparb', 'ogroups', 'checkfit', "
+        "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
         "'checkfitN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )

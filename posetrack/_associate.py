@@ -130,6 +130,16 @@ class FollowSettings:
     failed the online report stage by one cell (real motion, wide, clean: +3.0 mm at equal
     coverage), so online and per-frame it stays 0 (benchmarks/README.md, "The follower's
     reference"). Not in the paper."""
+    alone_frames: int = 0
+    """> 0: once no frame has shown two or more people for this many frames (or none ever
+    has), the only person in view is the followed one wherever the gate would put them (a
+    re-acquisition's body-proportion check still applies), and their lifted keypoints replace
+    the reference. 0 (the default): the gate alone decides. Without it, a person who moves
+    faster than the gate widens (0.6 m/s) while the track is lost is refused for as long as
+    they keep moving, alone in the view: on 72 wide tuning runs (2026-12-05, benchmarks/README
+    "The only person in view, refused") 307 of the 615 frames answered by nobody showed one
+    person, detected, refused by the gate (a walk across the view with 4 % of its frames
+    answered; a hop across, 35 %). Opt-in until screened. Not in the paper."""
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> FollowSettings:
@@ -150,6 +160,9 @@ class FollowSettings:
         v = self.depth_band
         if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
             raise ValueError(f"FollowSettings.depth_band must be >= 0 metres, got {v!r}")
+        n = self.alone_frames
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"FollowSettings.alone_frames must be an integer >= 0, got {n!r}")
 
     def gate_after(self, unseen: int) -> float:
         """The gate (m) after ``unseen`` consecutive frames without the tracked person."""
@@ -498,6 +511,9 @@ class PersonFollower:
         """Frames since :attr:`reference` was updated."""
         self.lengths: list[np.ndarray] = []
         """Body segment lengths (:func:`segment_lengths`) from tracked frames."""
+        self.crowd_since: int | None = None
+        """Frames since one showed two or more usable detections (None: none has yet)."""
+        self._new_reference = False
 
     @property
     def min_keypoints(self) -> int:
@@ -530,12 +546,29 @@ class PersonFollower:
             depth_band=fs.depth_band,
         )  # fmt: skip
         ok = cost < fs.gate_after(self.since)
+        alone = not ok.any() and self.alone(cands)
+        if alone:  # nobody else seen for a while: the only person in view is the person
+            ok = cands.usable(fs.min_keypoints)
         signature = self.signature()
         if reacquiring and signature is not None and ok.any():
             # Inconclusive (too few segments measured) is not a veto.
             mismatch = shape_mismatch(segment_lengths(cands.points3d, cands.has_depth), signature)
             ok &= ~(mismatch > fs.shape_tolerance)
-        return int(np.argmin(np.where(ok, cost, np.inf))) if ok.any() else -1
+        if not ok.any():
+            return -1
+        self._new_reference = alone
+        return int(np.argmin(np.where(ok, np.where(np.isfinite(cost), cost, 0.0), np.inf)))
+
+    def alone(self, cands: Candidates) -> bool:
+        """:attr:`FollowSettings.alone_frames`: one usable detection in this frame and none
+        of the last ``alone_frames`` frames showed more."""
+        n = (self.settings or FollowSettings()).alone_frames
+        crowd = self.crowd_since
+        return (
+            n > 0
+            and int(cands.usable(self.min_keypoints).sum()) == 1
+            and (crowd is None or crowd >= n)
+        )
 
     def usable(self, cands: Candidates) -> bool:
         """Whether anyone in the frame has enough keypoints to be considered."""
@@ -555,8 +588,15 @@ class PersonFollower:
         reference once enough are consistent.
         """
         self.since += 1
+        if int(cands.usable(self.min_keypoints).sum()) >= 2:
+            self.crowd_since = 0
+        elif self.crowd_since is not None:
+            self.crowd_since += 1
+        new_reference, self._new_reference = self._new_reference, False
         if p < 0:
             return
+        if new_reference:  # taken as the only person in view: start the reference afresh
+            self.reference = None
         fs = self.settings or FollowSettings()
         seen_depth = plausible_depth(cands.points3d[p], cands.has_depth[p], fs.depth_band)
         lifted = np.where(seen_depth[:, None], cands.points3d[p], np.nan)

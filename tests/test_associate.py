@@ -318,3 +318,64 @@ def test_the_tracker_follows_with_the_band_offline_only():
         pt.FollowSettings.for_mode("batch")
     with pytest.raises(TypeError, match="follow must be 'auto'"):
         pt.Tracker(INTR, follow="band")
+
+
+def _hide(c: Candidates, who: int) -> Candidates:
+    """``c`` without any keypoint of person ``who`` (hidden, or out of view)."""
+    det = c.detected.copy()
+    det[who] = False
+    return Candidates(
+        keypoints2d=c.keypoints2d, confidence=np.where(det, c.confidence, 0.0),
+        points3d=np.where(det[..., None], c.points3d, 0.0), detected=det, has_depth=det.copy(),
+    )  # fmt: skip
+
+
+def _walker(t: int) -> np.ndarray:
+    """A person walking across at 1.5 m/s (5 cm a frame at 30 fps), 3 m away."""
+    return _person_at(-0.5 + 0.05 * t, 3.0)
+
+
+@pytest.mark.parametrize("alone_frames", [0, 5])
+def test_the_only_person_in_view_is_followed_after_alone_frames(alone_frames):
+    # The walker is hidden for frames 1-12 (an occluder) and walks on faster than the gate
+    # widens (2 cm a frame); nobody else is ever in view.
+    follower = PersonFollower(pt.FollowSettings(alone_frames=alone_frames), "auto", INTR)
+    picked = []
+    for t in range(25):
+        c = _lifted(_walker(t)[None])
+        p = follower.select(c := _hide(c, 0) if 1 <= t <= 12 else c)
+        follower.observe(c, p)
+        picked.append(p)
+    assert picked[0] == 0 and set(picked[1:13]) == {-1}
+    if alone_frames == 0:  # the gate alone: refused for as long as they keep walking
+        assert set(picked[13:]) == {-1}
+    else:  # the only person in view, and the reference starts afresh on them
+        assert set(picked[13:]) == {0}
+        assert follower.since == 0
+        np.testing.assert_allclose(follower.reference, _walker(24), atol=1e-9)
+
+
+def test_a_second_person_seen_lately_keeps_the_gate():
+    # A second person stands aside while the walker is followed (frames 0-5); the walker is
+    # then hidden while the other stays in view (6-17), and comes back alone, far from where
+    # it was last seen (18-): with alone_frames=20 the gate decides until 20 frames after the
+    # last frame that showed both, then the only person in view is followed.
+    follower = PersonFollower(pt.FollowSettings(alone_frames=20), "auto", INTR)
+    other = _person_at(-1.5, 4.0)  # further away: the walker is the first choice
+    picked = []
+    for t in range(32):
+        both = _lifted(np.stack([_walker(t), other]))
+        c = both if t <= 5 else _hide(both, 0) if t <= 17 else _hide(both, 1)
+        p = follower.select(c)
+        follower.observe(c, p)
+        picked.append(p)
+    assert set(picked[:6]) == {0}
+    assert set(picked[6:26]) == {-1}  # the other person is never taken, nor the walker early
+    assert set(picked[26:]) == {0}
+    assert follower.crowd_since == 26
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, True, "3"])
+def test_follow_settings_reject_bad_alone_frames(bad):
+    with pytest.raises(ValueError, match="alone_frames"):
+        pt.FollowSettings(alone_frames=bad)
