@@ -149,12 +149,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--follow-band", type=float, help="FollowSettings.depth_band, m (default: shipped)"
     )
+    ap.add_argument(
+        "--alone-frames", type=int, help="FollowSettings.alone_frames (default: shipped)"
+    )
     ap.add_argument("--out", default=str(Path(__file__).parent / "results"))
     args = ap.parse_args(argv)
     config = pt.TrackerConfig()
     if args.lost_agreement is not None:
         config = pt.TrackerConfig(lost_agreement=args.lost_agreement)
-    follow = None if args.follow_band is None else pt.FollowSettings(depth_band=args.follow_band)
+    changes = {"depth_band": args.follow_band, "alone_frames": args.alone_frames}
+    changes = {k: v for k, v in changes.items() if v is not None}
+    follow = pt.FollowSettings(**changes) if changes else None
     n = 4 if args.quick else args.scenes
     seeds = list(TUNING_SEEDS if args.tuning else REPORT_SEEDS)[args.start : args.start + n]
     print(machine_summary(), file=sys.stderr)
@@ -180,6 +185,8 @@ def main(argv: list[str] | None = None) -> int:
         name += f"_agree{args.lost_agreement:g}"
     if args.follow_band is not None:
         name += f"_follow{args.follow_band:g}"
+    if args.alone_frames is not None:
+        name += f"_alone{args.alone_frames}"
     doc = {"machine": machine_summary(), "seeds": seeds, "summary": summary, "scenes": scenes,
            "size": [320, 240], "config": "TrackerConfig() (shipped MHT_h)" if args.lost_agreement
            is None else f"TrackerConfig(lost_agreement={args.lost_agreement:g})",
