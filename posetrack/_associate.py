@@ -131,10 +131,14 @@ class FollowSettings:
     coverage), so online and per-frame it stays 0 (benchmarks/README.md, "The follower's
     reference"). Not in the paper."""
     alone_frames: int = 0
-    """> 0: once no frame has shown two or more people for this many frames (or none ever
-    has), the only person in view is the followed one wherever the gate would put them (a
-    re-acquisition's body-proportion check still applies), and their lifted keypoints replace
-    the reference. 0 (the default): the gate alone decides. Without it, a person who moves
+    """> 0: once the track has been dropped (a re-acquisition) and no frame has shown two or
+    more people for this many frames (or none ever has), the only person in view is the
+    followed one wherever the gate would put them (the re-acquisition's body-proportion check
+    still applies), and their lifted keypoints replace the reference. While the track is alive
+    the gate decides as before: a first version that also took a lone detection the gate
+    refused there failed its screen (2026-12-05: answered frames +3.1 %, but swapped-limb
+    frames +6.3 % and one cell +3.6 mm, from detections that had jumped). 0 (the default): the
+    gate alone decides. Without it, a person who moves
     faster than the gate widens (0.6 m/s) while the track is lost is refused for as long as
     they keep moving, alone in the view: on 72 wide tuning runs (2026-12-05, benchmarks/README
     "The only person in view, refused") 307 of the 615 frames answered by nobody showed one
@@ -546,8 +550,8 @@ class PersonFollower:
             depth_band=fs.depth_band,
         )  # fmt: skip
         ok = cost < fs.gate_after(self.since)
-        alone = not ok.any() and self.alone(cands)
-        if alone:  # nobody else seen for a while: the only person in view is the person
+        alone = reacquiring and not ok.any() and self.alone(cands)
+        if alone:  # track dropped, nobody else seen for a while: the only person in view
             ok = cands.usable(fs.min_keypoints)
         signature = self.signature()
         if reacquiring and signature is not None and ok.any():

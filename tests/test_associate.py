@@ -343,7 +343,10 @@ def test_the_only_person_in_view_is_followed_after_alone_frames(alone_frames):
     picked = []
     for t in range(25):
         c = _lifted(_walker(t)[None])
-        p = follower.select(c := _hide(c, 0) if 1 <= t <= 12 else c)
+        c = _hide(c, 0) if 1 <= t <= 12 else c
+        if t == 13:  # while the track is alive (not re-acquiring) the gate decides
+            assert follower.select(c) == -1
+        p = follower.select(c, reacquiring=t >= 6)  # the tracker drops the track at 6
         follower.observe(c, p)
         picked.append(p)
     assert picked[0] == 0 and set(picked[1:13]) == {-1}
@@ -366,7 +369,7 @@ def test_a_second_person_seen_lately_keeps_the_gate():
     for t in range(32):
         both = _lifted(np.stack([_walker(t), other]))
         c = both if t <= 5 else _hide(both, 0) if t <= 17 else _hide(both, 1)
-        p = follower.select(c)
+        p = follower.select(c, reacquiring=t >= 11)  # the track dropped at 11
         follower.observe(c, p)
         picked.append(p)
     assert set(picked[:6]) == {0}
