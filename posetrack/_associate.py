@@ -138,12 +138,13 @@ class FollowSettings:
     the gate decides as before: a first version that also took a lone detection the gate
     refused there failed its screen (2026-12-05: answered frames +3.1 %, but swapped-limb
     frames +6.3 % and one cell +3.6 mm, from detections that had jumped). 0 (the default): the
-    gate alone decides. Without it, a person who moves
-    faster than the gate widens (0.6 m/s) while the track is lost is refused for as long as
-    they keep moving, alone in the view: on 72 wide tuning runs (2026-12-05, benchmarks/README
-    "The only person in view, refused") 307 of the 615 frames answered by nobody showed one
-    person, detected, refused by the gate (a walk across the view with 4 % of its frames
-    answered; a hop across, 35 %). Opt-in until screened. Not in the paper."""
+    gate alone decides. Without it, a person who moves faster than the gate widens (0.6 m/s)
+    while the track is lost is refused for as long as they keep moving, alone in the view: on
+    72 wide tuning runs (2026-12-05, benchmarks/README "The only person in view, refused") 307
+    of the 615 frames answered by nobody showed one person, detected, refused by the gate (a
+    walk across the view with 4 % of its frames answered; a hop across, 35 %). This version
+    changed none of 64 fresh tuning runs (the event is rarer than that sample) and answers 95 %
+    of the hop's frames: opt-in until a screen sized for it. Not in the paper."""
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> FollowSettings:
@@ -550,7 +551,7 @@ class PersonFollower:
             depth_band=fs.depth_band,
         )  # fmt: skip
         ok = cost < fs.gate_after(self.since)
-        alone = reacquiring and not ok.any() and self.alone(cands)
+        alone = reacquiring and not ok.any() and self._alone(cands)
         if alone:  # track dropped, nobody else seen for a while: the only person in view
             ok = cands.usable(fs.min_keypoints)
         signature = self.signature()
@@ -560,18 +561,15 @@ class PersonFollower:
             ok &= ~(mismatch > fs.shape_tolerance)
         if not ok.any():
             return -1
-        self._new_reference = alone
-        return int(np.argmin(np.where(ok, np.where(np.isfinite(cost), cost, 0.0), np.inf)))
+        self._new_reference = alone  # alone: ok marks the one usable detection
+        return int(np.argmax(ok)) if alone else int(np.argmin(np.where(ok, cost, np.inf)))
 
-    def alone(self, cands: Candidates) -> bool:
+    def _alone(self, cands: Candidates) -> bool:
         """:attr:`FollowSettings.alone_frames`: one usable detection in this frame and none
         of the last ``alone_frames`` frames showed more."""
-        n = (self.settings or FollowSettings()).alone_frames
-        crowd = self.crowd_since
+        n, crowd = self.settings.alone_frames, self.crowd_since
         return (
-            n > 0
-            and int(cands.usable(self.min_keypoints).sum()) == 1
-            and (crowd is None or crowd >= n)
+            n > 0 and cands.usable(self.min_keypoints).sum() == 1 and (crowd is None or crowd >= n)
         )
 
     def usable(self, cands: Candidates) -> bool:

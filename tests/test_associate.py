@@ -261,6 +261,11 @@ def _only(c: Candidates, keep: list[int]) -> Candidates:
     """``c`` with only the keypoints ``keep`` detected (a half-occluded person)."""
     det = np.zeros_like(c.detected)
     det[:, keep] = True
+    return _detected(c, det)
+
+
+def _detected(c: Candidates, det: np.ndarray) -> Candidates:
+    """``c`` with only the keypoints ``det`` (P, 18) detected, lifted and confident."""
     return Candidates(
         keypoints2d=c.keypoints2d, confidence=np.where(det, c.confidence, 0.0),
         points3d=np.where(det[..., None], c.points3d, 0.0), detected=det, has_depth=det.copy(),
@@ -324,10 +329,7 @@ def _hide(c: Candidates, who: int) -> Candidates:
     """``c`` without any keypoint of person ``who`` (hidden, or out of view)."""
     det = c.detected.copy()
     det[who] = False
-    return Candidates(
-        keypoints2d=c.keypoints2d, confidence=np.where(det, c.confidence, 0.0),
-        points3d=np.where(det[..., None], c.points3d, 0.0), detected=det, has_depth=det.copy(),
-    )  # fmt: skip
+    return _detected(c, det)
 
 
 def _walker(t: int) -> np.ndarray:
