@@ -18,11 +18,17 @@ seed is largely decided by which clips diverge under that seed.
     python benchmarks/paired.py RUNS.jsonl [MORE.jsonl ...] --candidate far1.0 [--json OUT]
     python benchmarks/paired.py RUNS.jsonl ... --spread default  # mean D per tracker seed
     python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared  # both answered
+    python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed  # a rare event
 
 ``--shared``: D and swapped-limb frames over the frames both variants answered (what
 ``decide.py`` records against the first variant it tracks), for a change that answers frames
 the baseline did not: over each version's own frames those frames' difficulty is charged to
-it (benchmarks/README.md, "The follower's reference")."""
+it (benchmarks/README.md, "The follower's reference").
+
+``--changed``: for a change that acts on a few runs in a hundred (a screen sized for a rare
+event, benchmarks/README.md, "The only person in view, refused"), every run and tracker seed
+whose D, coverage or swapped-limb frames differ, with its change on the frames both answered,
+the frames each answers and the D of the frames only the candidate answers, then the totals."""
 
 from __future__ import annotations
 
@@ -141,6 +147,34 @@ def _measures(rec: dict, base: str, candidate: str, shared: bool) -> tuple[dict,
     return {"D": s["base_D"], "swaps": s["base_swaps"]}, {"D": s["D"], "swaps": s["swaps"]}
 
 
+def changed(records: list[dict], base: str, candidate: str, frames: int) -> list[dict]:
+    """The records (one per run and tracker seed) whose ``candidate`` differs from ``base`` in
+    D, coverage or swapped-limb frames, each with the change on the frames both answered
+    (``shared``), the frames each answered (coverage x ``frames``, the clip's length; coverage
+    counts joints, so this is approximate where a frame holds some joints only) and the D of
+    the frames only the candidate answered (``new_D``, from its own-frame and shared-frame D
+    weighted by those counts; nan where it answered none more)."""
+    out = []
+    for rec in records:
+        b, c = rec[base], rec[candidate]
+        if all(b[m] == c[m] or (b[m] != b[m] and c[m] != c[m]) for m in ("D", "cov", "swaps")):
+            continue
+        s = _measures(rec, base, candidate, True)
+        n_b, n_c = round(b["cov"] * frames), round(c["cov"] * frames)
+        n_s = rec[candidate]["shared"]["frames"]
+        new = n_c - n_s
+        new_D = (c["D"] * n_c - s[1]["D"] * n_s) / new if new > 0 else math.nan
+        out.append({
+            "group": rec["group"], "seed": rec["seed"], "motion": rec["motion"],
+            "occ": rec["occ"], "tseed": rec["tseed"], "shared_frames": n_s,
+            "base_frames": n_b, "candidate_frames": n_c,
+            "base_shared_D": s[0]["D"], "candidate_shared_D": s[1]["D"],
+            "change": s[1]["D"] - s[0]["D"], "new_D": new_D,
+            "base_swaps": s[0]["swaps"], "candidate_swaps": s[1]["swaps"],
+        })  # fmt: skip
+    return out
+
+
 def summary(runs: list[dict]) -> dict:
     """Mean change over ``runs``, its standard deviation, standard error and t, the runs better
     and worse by more than ``CLEAR_MM``, swapped-limb frames summed, the mean spread, and both
@@ -208,6 +242,11 @@ def main() -> int:
         help="D and swapped-limb frames over the frames both variants answered (decide.py's "
         "'shared' measures) instead of each variant's own frames; coverage as always",
     )  # fmt: skip
+    ap.add_argument(
+        "--changed", action="store_true",
+        help="instead: the runs whose D, coverage or swaps differ, one line each, then totals",
+    )  # fmt: skip
+    ap.add_argument("--frames", type=int, default=120, help="frames per clip (decide.py: 120)")
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
     for path in a.runs:
@@ -230,6 +269,8 @@ def main() -> int:
             doc["table"] = [{"label": label, **r} for label, r in rows]
             Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
         return 0
+    if a.changed:
+        return _print_changed(load(a.runs), a.base, a.candidate, a.frames, a.json)
     runs = run_changes(load(a.runs), a.base, a.candidate, shared=a.shared)
     rows = table(runs)
     print(
@@ -254,6 +295,47 @@ def main() -> int:
                "shared": a.shared}  # fmt: skip
         doc["table"] = [{"label": label, **s} for label, s in rows]
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+def _print_changed(records: list[dict], base: str, candidate: str, frames: int, out) -> int:
+    rows = changed(records, base, candidate, frames)
+    print(f"{candidate} - {base}: {len(rows)} of {len(records)} runs x tracker seeds changed; "
+          "D mm (13 joints) on the frames both answered; new = frames only the candidate "
+          "answered")  # fmt: skip
+    print(f"{'run':<48} {'frames':>11} {'base':>7} {'cand':>7} {'change':>7} {'new D':>7} "
+          f"{'swaps':>9}")  # fmt: skip
+    for r in rows:
+        name = f"{r['group']} {r['seed']} {r['motion']} occ {r['occ']} t{r['tseed']}"
+        print(f"{name[:48]:<48} {r['base_frames']:>4}->{r['candidate_frames']:<5} "
+              f"{r['base_shared_D']:>7.1f} {r['candidate_shared_D']:>7.1f} {r['change']:>+7.1f} "
+              f"{r['new_D']:>7.1f} {r['base_swaps']:>3}->{r['candidate_swaps']:<4}")  # fmt: skip
+    all_runs = run_changes(records, base, candidate, shared=True)
+    new = [(r["new_D"], r["candidate_frames"] - r["shared_frames"]) for r in rows]
+    new = [(d, n) for d, n in new if n > 0]
+    n_s = sum(r["shared_frames"] for r in rows)
+    totals = {
+        "runs": len(records), "changed": len(rows),
+        "base_frames": sum(round(r[base]["cov"] * frames) for r in records),
+        "candidate_frames": sum(round(r[candidate]["cov"] * frames) for r in records),
+        "mean_change_all": float(np.mean([r["change"] for r in all_runs])),
+        "worst_change": max((r["change"] for r in rows), default=0.0),
+        "worse_5mm": sum(r["change"] > CLEAR_MM for r in rows),
+        "better_5mm": sum(r["change"] < -CLEAR_MM for r in rows),
+        "more_frames": sum(r["candidate_frames"] > r["base_frames"] for r in rows),
+        "fewer_frames": sum(r["candidate_frames"] < r["base_frames"] for r in rows),
+        "swaps_changed": [sum(r["base_swaps"] for r in rows),
+                          sum(r["candidate_swaps"] for r in rows)],
+        "new_D": sum(d * n for d, n in new) / sum(n for _, n in new) if new else math.nan,
+        "changed_shared_D": sum(r["candidate_shared_D"] * r["shared_frames"] for r in rows) / n_s
+        if n_s else math.nan,
+        "accel": [float(np.mean([r[v]["accel"] for r in records])) for v in (base, candidate)],
+    }  # fmt: skip
+    for k, v in totals.items():
+        print(f"  {k}: {v}")
+    if out:
+        doc = {"base": base, "candidate": candidate, "changed": rows, "totals": totals}
+        Path(out).write_text(json.dumps(doc, indent=1) + "\n")
     return 0
 
 

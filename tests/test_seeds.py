@@ -321,6 +321,34 @@ def test_the_paired_change_reads_a_missing_acceleration_as_nan():
     assert run["change"] == -10.0
 
 
+def test_the_changed_runs_of_a_rare_event_and_the_frames_only_the_candidate_answers():
+    paired = load("paired")
+
+    def rec(seed, base, cand, shared):
+        return {
+            "group": "walk_across", "seed": seed, "motion": "walk", "occ": 2, "tseed": 0,
+            "default": {"D": base[0], "cov": base[1], "swaps": base[2], "accel": 3.0},
+            "alone30": {"D": cand[0], "cov": cand[1], "swaps": cand[2], "accel": 5.0,
+                        "shared": {"vs": "default", "frames": shared[0], "D": shared[1],
+                                   "base_D": base[0], "swaps": shared[2],
+                                   "base_swaps": base[2]}},
+        }  # fmt: skip
+
+    records = [
+        rec(1, (50.0, 1.0, 0), (50.0, 1.0, 0), (10, 50.0, 0)),  # identical: not changed
+        # 4 of 10 frames answered -> 10; the shared 4 at 90 mm, the own 10 at 66 mm, so the
+        # 6 new frames hold (66 * 10 - 90 * 4) / 6 = 50 mm
+        rec(2, (100.0, 0.4, 2), (66.0, 1.0, 1), (4, 90.0, 1)),
+        rec(3, (40.0, 1.0, 0), (70.0, 1.0, 3), (10, 70.0, 3)),  # the same frames, worse
+    ]
+    rows = {r["seed"]: r for r in paired.changed(records, "default", "alone30", frames=10)}
+    assert set(rows) == {2, 3}
+    assert (rows[2]["base_frames"], rows[2]["candidate_frames"]) == (4, 10)
+    assert rows[2]["change"] == pytest.approx(-10.0) and rows[2]["new_D"] == pytest.approx(50.0)
+    assert rows[3]["change"] == pytest.approx(30.0) and np.isnan(rows[3]["new_D"])
+    assert (rows[3]["base_swaps"], rows[3]["candidate_swaps"]) == (0, 3)
+
+
 def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
     paired = load("paired")
     twice = _write(tmp_path / "twice.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)] * 2)
