@@ -10,12 +10,12 @@ import numpy as np
 from . import _body as body
 from ._config import TrackerConfig
 from ._step import NO_OBSERVATION, FrameEstimate
-from .io._export import JOINT_STATE_NAMES
 
 #: The frame status codes' names (also the strings written to files).
 STATUS_NAMES = ("tracked", "lost", "no_observation")
-#: Names of :attr:`TrackResult.joint_state`'s values (also written to ``poses.npz``).
-JOINT_STATES = JOINT_STATE_NAMES
+#: Names of :attr:`TrackResult.joint_state`'s values (also written to ``poses.npz``, whose
+#: writer, in io, holds the same tuple: the core never imports io; tests/test_layout.py checks).
+JOINT_STATES = ("not_estimated", "predicted", "observed")
 
 
 @dataclasses.dataclass(frozen=True)
