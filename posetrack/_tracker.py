@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Array
 
 from . import _body as body
+from ._arbitration import Branch, OnlineArbitration, Reading
 from ._associate import (
     PERSON_RULES,
     Candidates,
@@ -223,93 +224,6 @@ class _Prepared:
 def _body_flipped(lm: Landmarks) -> Landmarks:
     """``lm`` (host arrays) with every left/right keypoint pair exchanged."""
     return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
-
-
-def _frame_delta(est: FrameEstimate | None, status: int) -> float:
-    """The Delta of a frame's pose (NaN where the frame has none), as the arbitration sums."""
-    return float(est.delta) if est is not None and status != NO_OBSERVATION else float("nan")
-
-
-@dataclasses.dataclass
-class _Branch:
-    """One reading of a stretch under online arbitration: the tracker's state after its
-    newest frame and, per judged frame, what :meth:`Tracker.update` returned for it."""
-
-    snapshot: tuple
-    rows: list
-    """Per judged frame, ``(out, exchanged, person)`` as this reading saw it (:meth:`Tracker.run`
-    records the kept reading's)."""
-
-    @property
-    def out(self) -> tuple:
-        """What :meth:`Tracker.update` returned for the newest frame."""
-        return self.rows[-1][0]
-
-    @property
-    def deltas(self) -> list[float]:
-        """Each judged frame's Delta (NaN where it has none)."""
-        return [_frame_delta(*row[0]) for row in self.rows]
-
-
-@dataclasses.dataclass
-class _Reading:
-    """One exchanged reading of a stretch judged online: which groups it exchanges, its
-    branch, and in how many judged frames its forward pass still read one of them exchanged
-    (the first one did)."""
-
-    groups: np.ndarray
-    branch: _Branch
-    held: int = 1
-
-
-@dataclasses.dataclass
-class _OnlineArbitration:
-    """A stretch tracked both ways online (:meth:`Tracker._update_arbitrated`)."""
-
-    left: int
-    readings: list[_Reading]
-    """Every newly read group's exchange together first; with
-    :attr:`SideSettings.online_groups`, where several were read together, then each one's
-    alone."""
-    detected: _Branch | None = None
-
-    @property
-    def groups(self) -> np.ndarray:
-        """``bool (groups,)``: the groups being judged."""
-        return self.readings[0].groups
-
-    @property
-    def exchanged(self) -> _Branch:
-        """The branch with every judged group exchanged."""
-        return self.readings[0].branch
-
-    def leading(self, sides: SideSettings) -> tuple[np.ndarray | None, _Branch]:
-        """``(groups exchanged, branch)`` of the reading that leads: of the exchanged
-        readings that held long enough and beat the detections (:func:`prefer_exchanged`),
-        the one whose Delta summed is lowest; else ``(None, the detections' branch)``."""
-        # Until an exchanged reading has held long enough the detections' labels lead (the
-        # leading reading's frames enter the poses published meanwhile); a stretch shorter
-        # than online_min_held frames needs all of them.
-        frames = len(self.exchanged.rows) + self.left
-        best, best_sum = (None, self.detected), np.inf
-        for r in self.readings:
-            if r.held < min(sides.online_min_held, frames):
-                continue
-            deltas = np.array(r.branch.deltas)
-            wins = prefer_exchanged(np.array(self.detected.deltas), deltas, sides.arbitrate_margin)
-            if wins and np.nansum(deltas) < best_sum:
-                best, best_sum = (r.groups, r.branch), float(np.nansum(deltas))
-        return best
-
-    def report(self, frames_seen: int, kept: _Branch) -> tuple[int, int, float, float, bool]:
-        """A :attr:`Tracker.side_spans` entry; its exchanged Delta is the kept reading's, or
-        where the detections' was kept, every group's exchange together."""
-        n = len(self.exchanged.deltas)
-        ex = self.exchanged if kept is self.detected else kept
-        return (
-            frames_seen - n, frames_seen, float(np.nansum(self.detected.deltas)),
-            float(np.nansum(ex.deltas)), kept is not self.detected,
-        )  # fmt: skip
 
 
 class Tracker:
@@ -641,7 +555,7 @@ class Tracker:
         self._veto = np.zeros(G, bool)
         self._new_exchanged = np.zeros(G, bool)
         self._since_judged = np.zeros(G, np.int64)
-        self._arbitration: _OnlineArbitration | None = None
+        self._arbitration: OnlineArbitration | None = None
         # The frames of the judgement that ended at the last update, as the kept reading saw
         # them (``run`` rewrites their rows: each was recorded as the reading leading then).
         self._judged_rows: list | None = None
@@ -1118,15 +1032,15 @@ class Tracker:
             if not new.any() or self._person < 0:
                 return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
-            first = _Branch(self._online_snapshot(), [self._judged_row(out)])
-            arb = _OnlineArbitration(left=self._online_frames(), readings=[_Reading(new, first)])
+            first = Branch(self._online_snapshot(), [self._judged_row(out)])
+            arb = OnlineArbitration(left=self._online_frames(), readings=[Reading(new, first)])
             if self.sides.online_groups and new.sum() > 1:
                 # Each group's exchange alone too: the others vetoed as in the detections'.
                 for g in np.flatnonzero(new):
                     only = np.zeros_like(new)
                     only[g] = True
                     branch = self._judged_branch(before, new, new & ~only, depth, kp2d, conf)
-                    arb.readings.append(_Reading(only, branch))
+                    arb.readings.append(Reading(only, branch))
             arb.detected = self._judged_branch(before, new, new, depth, kp2d, conf)
             self._arbitration = arb
         else:
@@ -1155,7 +1069,7 @@ class Tracker:
 
     def _judged_branch(
         self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
-    ) -> _Branch:
+    ) -> Branch:
         """A judged stretch's reading that starts from ``before`` (an online snapshot) with
         the ``vetoed`` groups of the newly exchanged ``new`` kept as detected: its first
         frame tracked, the groups of ``new`` judged from here."""
@@ -1163,10 +1077,10 @@ class Tracker:
         self._veto = self._veto | vetoed
         row = self._judged_row(self._update_once(depth, kp2d, conf))
         self._since_judged[new] = 0
-        return _Branch(self._online_snapshot(), [row])
+        return Branch(self._online_snapshot(), [row])
 
     def _judged_row(self, out: tuple) -> tuple:
-        """A judged frame's row of a :class:`_Branch`: what the update returned, with the
+        """A judged frame's row of a :class:`Branch`: what the update returned, with the
         labelling and the person it used."""
         return out, self.exchanged.copy(), self._person
 

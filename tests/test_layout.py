@@ -10,7 +10,9 @@ from pathlib import Path
 import posetrack as pt
 from posetrack.io import _export
 
-PACKAGE = Path(pt.__file__).parent
+#: The source tree (not the installed copy: the check reads the code this checkout ships).
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "posetrack"
 SUBPACKAGES = ("io", "synth", "detect", "app")
 #: The core modules each subpackage may import (beside its own modules and the public API's
 #: subpackages named in the README): io and synth read and write camera intrinsics, io's
@@ -91,3 +93,10 @@ def test_io_and_synth_take_from_the_core_only_what_the_readme_names():
 
 def test_the_joint_state_names_agree_between_the_result_and_its_file_writer():
     assert pt.JOINT_STATES == _export.JOINT_STATE_NAMES
+
+
+def test_every_core_module_is_named_in_the_readme_layout_table():
+    readme = (ROOT / "README.md").read_text()
+    (row,) = [line for line in readme.splitlines() if line.startswith("| `posetrack/` (the core)")]
+    missing = [p.stem for p in _modules("core") if f"`{p.stem}`" not in row]
+    assert not missing, f"README's layout table does not name {missing}"

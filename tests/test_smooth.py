@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import posetrack as pt
-from posetrack import _body, _limbs, _smooth, _tracker
+from posetrack import _arbitration, _body, _limbs, _smooth, _tracker
 from posetrack._observe import Landmarks
 
 # -- metrics ----------------------------------------------------------------------------------
@@ -1088,7 +1088,8 @@ def test_online_an_exchange_the_2d_reading_drops_at_once_is_not_kept(
     ``SideSettings.online_min_held`` of them, so the detections' labels stay: the track is
     the one without relabelling, bit for bit. With ``online_min_held=1`` the depth alone
     decides and keeps it; an exchange read through the whole stretch is kept either way."""
-    monkeypatch.setattr(_tracker, "prefer_exchanged", lambda *a: True)
+    for module in (_tracker, _arbitration):  # the offline rule and the online judgement's
+        monkeypatch.setattr(module, "prefer_exchanged", lambda *a: True)
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     k = pt.ONLINE_LAG + 1
     _misread(monkeypatch, clip, arms=range(10, 11), legs=range(0))
@@ -1116,7 +1117,8 @@ def test_online_run_records_a_judged_stretch_as_the_kept_reading_saw_it(clip, mo
     decision were returned as the reading that led then; ``run`` records them as the kept
     reading saw them: the labels exchanged in every judged frame."""
     k = pt.ONLINE_LAG + 1
-    monkeypatch.setattr(_tracker, "prefer_exchanged", lambda a, b, m: len(b) >= k)
+    for module in (_tracker, _arbitration):  # the offline rule and the online judgement's
+        monkeypatch.setattr(module, "prefer_exchanged", lambda a, b, m: len(b) >= k)
     _misread(monkeypatch, clip, arms=range(10, 20), legs=range(0))
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=None)
     judged = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
