@@ -102,7 +102,10 @@ class FollowSettings:
     shape_tolerance: float = 0.15
     """Re-acquisition: the median over body segments of |log(length / tracked length)| must be
     below this (0.15 = about 16 %). Single-frame lengths are noisy, so this rejects clearly
-    different bodies (a child, a much taller person) rather than telling twins apart."""
+    different bodies (a child, a much taller person) rather than telling twins apart: measured
+    frame by frame (2026-12-05, benchmarks/README "The re-acquisition's shape check"), it
+    refuses the tracked person in 20 % of frames on wide real motion and 6 % on standard
+    bodies, a bystander in 25 %. Skipped where ``alone_frames`` says nobody else was seen."""
     min_keypoints: int = 3
     """A detection needs this many keypoints (confidence above ``confidence_threshold``) to be
     considered at all."""
@@ -133,8 +136,10 @@ class FollowSettings:
     alone_frames: int = 0
     """> 0: once the track has been dropped (a re-acquisition) and no frame has shown two or
     more people for this many frames (or none ever has), the only person in view is the
-    followed one wherever the gate would put them (the re-acquisition's body-proportion check
-    still applies), and their lifted keypoints replace the reference. While the track is alive
+    followed one: wherever the gate would put them (their lifted keypoints then replace the
+    reference), and whatever one frame's body proportions say (the re-acquisition's check,
+    ``shape_tolerance``, refuses the tracked person in ~20 % of frames on wide real motion and
+    then protects nothing; it did in the first two versions). While the track is alive
     the gate decides as before: a first version that also took a lone detection the gate
     refused there failed its screen (2026-12-05: answered frames +3.1 %, but swapped-limb
     frames +6.3 % and one cell +3.6 mm, from detections that had jumped). 0 (the default): the
@@ -551,11 +556,14 @@ class PersonFollower:
             depth_band=fs.depth_band,
         )  # fmt: skip
         ok = cost < fs.gate_after(self.since)
-        alone = reacquiring and not ok.any() and self._alone(cands)
-        if alone:  # track dropped, nobody else seen for a while: the only person in view
+        # Track dropped, nobody else seen for a while: the only person in view is the followed
+        # one, and neither the gate nor the proportions refuse them.
+        lone = reacquiring and self._alone(cands)
+        alone = lone and not ok.any()
+        if alone:
             ok = cands.usable(fs.min_keypoints)
         signature = self.signature()
-        if reacquiring and signature is not None and ok.any():
+        if reacquiring and not lone and signature is not None and ok.any():
             # Inconclusive (too few segments measured) is not a veto.
             mismatch = shape_mismatch(segment_lengths(cands.points3d, cands.has_depth), signature)
             ok &= ~(mismatch > fs.shape_tolerance)

@@ -380,6 +380,29 @@ def test_a_second_person_seen_lately_keeps_the_gate():
     assert follower.crowd_since == 26
 
 
+@pytest.mark.parametrize("alone_frames", [0, 5])
+def test_alone_the_proportions_check_does_not_refuse_the_only_person(alone_frames):
+    # Tracked for 6 frames (the proportions measured), the track drops at 6 and the person,
+    # in place, shows one frame whose segments all read 1.3x longer (a noisy lifting): the
+    # re-acquisition's check refuses it unless nobody else was seen lately.
+    follower = PersonFollower(pt.FollowSettings(alone_frames=alone_frames), "auto", INTR)
+    person = _person_at(0.0, 3.0)
+    for _ in range(6):
+        c = _lifted(person[None])
+        follower.observe(c, p := follower.select(c))
+        follower.tracked(c, p)
+    assert follower.signature() is not None
+    neck = person[1]
+    long = _lifted((neck + 1.3 * (person - neck))[None])
+    assert follower.select(long, reacquiring=True) == (-1 if alone_frames == 0 else 0)
+    assert follower._new_reference is False  # the gate took them: the reference stays
+    # with a second person seen lately the check applies again
+    other = _person_at(-1.5, 4.0)
+    follower.observe(_lifted(np.stack([person, other])), 0)
+    long_beside = _hide(_lifted(np.stack([neck + 1.3 * (person - neck), other])), 1)
+    assert follower.select(long_beside, reacquiring=True) == -1
+
+
 @pytest.mark.parametrize("bad", [-1, 1.5, True, "3"])
 def test_follow_settings_reject_bad_alone_frames(bad):
     with pytest.raises(ValueError, match="alone_frames"):
