@@ -147,9 +147,12 @@ class FollowSettings:
     while the track is lost is refused for as long as they keep moving, alone in the view: on
     72 wide tuning runs (2026-12-05, benchmarks/README "The only person in view, refused") 307
     of the 615 frames answered by nobody showed one person, detected, refused by the gate (a
-    walk across the view with 4 % of its frames answered; a hop across, 35 %). This version
-    changed none of 64 fresh tuning runs (the event is rarer than that sample) and answers 95 %
-    of the hop's frames: opt-in until a screen sized for it. Not in the paper."""
+    walk across the view with 4 % of its frames answered; a hop across, 35 %). The second
+    version (the gate only) answers 95 % of the hop's frames; a screen of 186 fresh runs
+    failed it on one occluded walk across (+32.5 mm on the frames both answer under tracker
+    seed 0, -0.9 over seeds 1-3: a re-acquisition a frame earlier sends the track elsewhere),
+    while 6 runs answered more frames. Opt-in until a screen that pools tracker seeds
+    (benchmarks/README "The only person in view, refused"). Not in the paper."""
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> FollowSettings:
