@@ -157,10 +157,10 @@ def changed(records: list[dict], base: str, candidate: str, frames: int) -> list
     out = []
     for rec in records:
         b, c = rec[base], rec[candidate]
-        if all(b[m] == c[m] or (b[m] != b[m] and c[m] != c[m]) for m in ("D", "cov", "swaps")):
+        if all(_same(b[m], c[m]) for m in ("D", "cov", "swaps")):
             continue
         s = _measures(rec, base, candidate, True)
-        n_b, n_c = round(b["cov"] * frames), round(c["cov"] * frames)
+        n_b, n_c = _answered(b, frames), _answered(c, frames)
         n_s = rec[candidate]["shared"]["frames"]
         new = n_c - n_s
         new_D = (c["D"] * n_c - s[1]["D"] * n_s) / new if new > 0 else math.nan
@@ -173,6 +173,16 @@ def changed(records: list[dict], base: str, candidate: str, frames: int) -> list
             "base_swaps": s[0]["swaps"], "candidate_swaps": s[1]["swaps"],
         })  # fmt: skip
     return out
+
+
+def _same(x: float, y: float) -> bool:
+    """Equal, or both NaN (a D over no frames)."""
+    return x == y or (math.isnan(x) and math.isnan(y))
+
+
+def _answered(measures: dict, frames: int) -> int:
+    """Frames a variant answered in a clip of ``frames``: its coverage x ``frames``."""
+    return round(measures["cov"] * frames)
 
 
 def summary(runs: list[dict]) -> dict:
@@ -316,8 +326,8 @@ def _print_changed(records: list[dict], base: str, candidate: str, frames: int, 
     n_s = sum(r["shared_frames"] for r in rows)
     totals = {
         "runs": len(records), "changed": len(rows),
-        "base_frames": sum(round(r[base]["cov"] * frames) for r in records),
-        "candidate_frames": sum(round(r[candidate]["cov"] * frames) for r in records),
+        "base_frames": sum(_answered(r[base], frames) for r in records),
+        "candidate_frames": sum(_answered(r[candidate], frames) for r in records),
         "mean_change_all": float(np.mean([r["change"] for r in all_runs])),
         "worst_change": max((r["change"] for r in rows), default=0.0),
         "worse_5mm": sum(r["change"] > CLEAR_MM for r in rows),
