@@ -19,6 +19,7 @@ seed is largely decided by which clips diverge under that seed.
     python benchmarks/paired.py RUNS.jsonl ... --spread default  # mean D per tracker seed
     python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared  # both answered
     python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed  # a rare event
+    python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed --pooled
 
 ``--shared``: D and swapped-limb frames over the frames both variants answered (what
 ``decide.py`` records against the first variant it tracks), for a change that answers frames
@@ -28,7 +29,10 @@ it (benchmarks/README.md, "The follower's reference").
 ``--changed``: for a change that acts on a few runs in a hundred (a screen sized for a rare
 event, benchmarks/README.md, "The only person in view, refused"), every run and tracker seed
 whose D, coverage or swapped-limb frames differ, with its change on the frames both answered,
-the frames each answers and the D of the frames only the candidate answers, then the totals."""
+the frames each answers and the D of the frames only the candidate answers, then the totals.
+With ``--pooled`` one line per run, its tracker seeds pooled (a rule that reads each run as the
+mean of its seeds; ``--min-shared``: the frames a seed's both variants must share for its D
+change to count)."""
 
 from __future__ import annotations
 
@@ -175,6 +179,83 @@ def changed(records: list[dict], base: str, candidate: str, frames: int) -> list
     return out
 
 
+def pooled_changed(
+    records: list[dict], base: str, candidate: str, frames: int, min_shared: int = 30
+) -> tuple[list[dict], dict]:
+    """:func:`changed` with each run's tracker seeds pooled (a run changes when any of its
+    seeds does), for a rule that reads each run as the mean of its seeds: ``(rows, totals)``.
+
+    A seed's change is the candidate's D minus the baseline's on the frames both answered,
+    counted only where they share at least ``min_shared`` frames (fewer are too few to judge a
+    D on); a run's change is the mean over its counted seeds (NaN, and the run left out of the
+    mean and the counts, where none counts). Frames and swapped-limb frames (on the shared
+    frames, ``swaps``; on each variant's own, ``own_swaps``) are summed over the seeds. Totals:
+    runs, changed runs, frames answered (and runs answering more than 2 % fewer), the mean
+    change over every run that counts (unchanged runs at 0), the worst change and the changed
+    runs worse / better by more than ``CLEAR_MM``, swaps of the changed runs, the D of the
+    frames only the candidate answered against the changed runs' shared-frame D (both
+    frame-weighted, every seed of a changed run), and both variants' mean acceleration error
+    over all records."""
+    run_changes(records, base, candidate, shared=True)  # both variants, seeds complete
+    runs = defaultdict(list)
+    for rec in records:
+        runs[(rec["group"], rec["seed"], rec["motion"], rec["occ"])].append(rec)
+    rows, all_changes = [], []
+    new_sum = new_n = shared_sum = shared_n = 0.0
+    for (group, seed, motion, occ), recs in runs.items():
+        moved = [
+            not all(_same(r[base][m], r[candidate][m]) for m in ("D", "cov", "swaps")) for r in recs
+        ]
+        per_seed = []
+        for r in recs:
+            s = r[candidate]["shared"]
+            if s["frames"] >= min_shared:
+                per_seed.append(s["D"] - s["base_D"])
+        change = float(np.mean(per_seed)) if per_seed else math.nan
+        if per_seed:
+            all_changes.append(change)
+        if not any(moved):
+            continue
+        for r in recs:
+            s = r[candidate]["shared"]
+            n_c, n_s = _answered(r[candidate], frames), s["frames"]
+            if n_c > n_s:  # the D of the frames only the candidate answered
+                new_sum += r[candidate]["D"] * n_c - s["D"] * n_s
+                new_n += n_c - n_s
+            if n_s > 0:
+                shared_sum += s["D"] * n_s
+                shared_n += n_s
+        rows.append({
+            "group": group, "seed": seed, "motion": motion, "occ": occ,
+            "tseeds": sorted(r["tseed"] for r in recs), "seeds_changed": sum(moved),
+            "seeds_counted": len(per_seed),
+            "base_frames": sum(_answered(r[base], frames) for r in recs),
+            "candidate_frames": sum(_answered(r[candidate], frames) for r in recs),
+            "change": change,
+            "swaps": [sum(r[candidate]["shared"][k] for r in recs)
+                      for k in ("base_swaps", "swaps")],
+            "own_swaps": [sum(r[v]["swaps"] for r in recs) for v in (base, candidate)],
+        })  # fmt: skip
+    counted = [r for r in rows if not math.isnan(r["change"])]
+    totals = {
+        "runs": len(runs), "changed": len(rows),
+        "base_frames": sum(_answered(r[base], frames) for r in records),
+        "candidate_frames": sum(_answered(r[candidate], frames) for r in records),
+        "fewer_2pct": sum(r["candidate_frames"] < 0.98 * r["base_frames"] for r in rows),
+        "runs_counted": len(all_changes),
+        "mean_change": float(np.mean(all_changes)) if all_changes else math.nan,
+        "worst_change": max((r["change"] for r in counted), default=math.nan),
+        "worse_5mm": sum(r["change"] > CLEAR_MM for r in counted),
+        "better_5mm": sum(r["change"] < -CLEAR_MM for r in counted),
+        "swaps_changed": [sum(r["swaps"][i] for r in rows) for i in (0, 1)],
+        "own_swaps_changed": [sum(r["own_swaps"][i] for r in rows) for i in (0, 1)],
+        "new_D": new_sum / new_n if new_n else math.nan, "new_frames": int(new_n),
+        "changed_shared_D": shared_sum / shared_n if shared_n else math.nan,
+        "accel": [float(np.mean([r[v]["accel"] for r in records])) for v in (base, candidate)],
+    }  # fmt: skip
+    return rows, totals
+
+
 def _same(x: float, y: float) -> bool:
     """Equal, or both NaN (a D over no frames)."""
     return x == y or (math.isnan(x) and math.isnan(y))
@@ -256,6 +337,15 @@ def main() -> int:
         "--changed", action="store_true",
         help="instead: the runs whose D, coverage or swaps differ, one line each, then totals",
     )  # fmt: skip
+    ap.add_argument(
+        "--pooled", action="store_true",
+        help="with --changed: one line per run, its tracker seeds pooled (the mean change over "
+        "the seeds sharing at least --min-shared frames)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--min-shared", type=int, default=30,
+        help="with --pooled: a seed's D change counts where both answer this many frames (30)",
+    )  # fmt: skip
     ap.add_argument("--frames", type=int, default=120, help="frames per clip (decide.py: 120)")
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
@@ -279,6 +369,10 @@ def main() -> int:
             doc["table"] = [{"label": label, **r} for label, r in rows]
             Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
         return 0
+    if a.pooled and not a.changed:
+        ap.error("--pooled goes with --changed")
+    if a.changed and a.pooled:
+        return _print_pooled(load(a.runs), a.base, a.candidate, a.frames, a.min_shared, a.json)
     if a.changed:
         return _print_changed(load(a.runs), a.base, a.candidate, a.frames, a.json)
     runs = run_changes(load(a.runs), a.base, a.candidate, shared=a.shared)
@@ -345,6 +439,26 @@ def _print_changed(records: list[dict], base: str, candidate: str, frames: int, 
         print(f"  {k}: {v}")
     if out:
         doc = {"base": base, "candidate": candidate, "changed": rows, "totals": totals}
+        Path(out).write_text(json.dumps(doc, indent=1) + "\n")
+    return 0
+
+
+def _print_pooled(records, base, candidate, frames, min_shared, out) -> int:
+    rows, totals = pooled_changed(records, base, candidate, frames, min_shared)
+    print(f"{candidate} - {base}: {len(rows)} of {totals['runs']} runs changed (tracker seeds "
+          f"pooled); D mm (13 joints) on the frames both answered, mean over the seeds sharing "
+          f">= {min_shared} frames")  # fmt: skip
+    print(f"{'run':<44} {'seeds':>9} {'frames':>11} {'change':>7} {'swaps':>9}")
+    for r in rows:
+        name = f"{r['group']} {r['seed']} {r['motion']} occ {r['occ']}"
+        print(f"{name[:44]:<44} {r['seeds_changed']:>3} ch {r['seeds_counted']:>1} n "
+              f"{r['base_frames']:>4}->{r['candidate_frames']:<5} {r['change']:>+7.1f} "
+              f"{r['swaps'][0]:>3}->{r['swaps'][1]:<4}")  # fmt: skip
+    for k, v in totals.items():
+        print(f"  {k}: {v}")
+    if out:
+        doc = {"base": base, "candidate": candidate, "min_shared": min_shared, "changed": rows,
+               "totals": totals}  # fmt: skip
         Path(out).write_text(json.dumps(doc, indent=1) + "\n")
     return 0
 

@@ -349,6 +349,51 @@ def test_the_changed_runs_of_a_rare_event_and_the_frames_only_the_candidate_answ
     assert (rows[3]["base_swaps"], rows[3]["candidate_swaps"]) == (0, 3)
 
 
+def test_the_pooled_changed_runs_average_the_seeds_that_share_enough_frames():
+    paired = load("paired")
+
+    def rec(seed, tseed, base, cand, shared):
+        return {
+            "group": "wide real", "seed": seed, "motion": "m", "occ": 2, "tseed": tseed,
+            "default": {"D": base[0], "cov": base[1], "swaps": base[2], "accel": 4.0},
+            "alone30": {"D": cand[0], "cov": cand[1], "swaps": cand[2], "accel": 5.0,
+                        "shared": {"vs": "default", "frames": shared[0], "D": shared[1],
+                                   "base_D": shared[2], "swaps": shared[3],
+                                   "base_swaps": shared[4]}},
+        }  # fmt: skip
+
+    same = ((50.0, 1.0, 0), (50.0, 1.0, 0), (100, 50.0, 50.0, 0, 0))
+    records = [
+        rec(1, 0, *same), rec(1, 1, *same),  # unchanged: counts in the mean at 0
+        # seed 0: 100 -> 100 frames, 10 mm worse on them; seed 1: 20 -> 100 frames, but only
+        # 20 shared (< 30): its -40 does not count, so the run's change is +10, not -15; its
+        # 80 new frames hold (60 * 100 - 90 * 20) / 80 = 52.5 mm
+        rec(2, 0, (40.0, 1.0, 1), (50.0, 1.0, 3), (100, 50.0, 40.0, 3, 1)),
+        rec(2, 1, (130.0, 0.2, 0), (60.0, 1.0, 2), (20, 90.0, 130.0, 2, 0)),
+        # both seeds answer 100 -> 97 frames (3 % fewer), 20 and 0 mm better
+        rec(3, 0, (80.0, 1.0, 0), (60.0, 0.97, 0), (97, 60.0, 80.0, 0, 0)),
+        rec(3, 1, (70.0, 1.0, 0), (70.0, 0.97, 0), (97, 70.0, 70.0, 0, 0)),
+    ]  # fmt: skip
+    rows, totals = paired.pooled_changed(records, "default", "alone30", frames=100)
+    rows = {r["seed"]: r for r in rows}
+    assert set(rows) == {2, 3}
+    assert rows[2]["change"] == pytest.approx(10.0) and rows[2]["seeds_counted"] == 1
+    assert (rows[2]["base_frames"], rows[2]["candidate_frames"]) == (120, 200)
+    assert rows[2]["swaps"] == [1, 5] and rows[2]["own_swaps"] == [1, 5]
+    assert rows[3]["change"] == pytest.approx(-10.0) and rows[3]["seeds_changed"] == 2
+    assert totals["runs"] == 3 and totals["changed"] == 2 and totals["fewer_2pct"] == 1
+    assert totals["mean_change"] == pytest.approx(0.0)  # (0 + 10 - 10) / 3
+    assert (totals["worse_5mm"], totals["better_5mm"]) == (1, 1)
+    assert totals["worst_change"] == pytest.approx(10.0)
+    assert totals["new_frames"] == 80 and totals["new_D"] == pytest.approx(52.5)
+    # every seed of the changed runs, frame-weighted: (5000 + 1800 + 5820 + 6790) / 314
+    assert totals["changed_shared_D"] == pytest.approx(19410 / 314)
+    assert totals["accel"] == [4.0, 5.0]
+    # a seed short of frames in every seed leaves the run out of the mean
+    rows, totals = paired.pooled_changed(records, "default", "alone30", 100, min_shared=101)
+    assert all(np.isnan(r["change"]) for r in rows) and totals["runs_counted"] == 0
+
+
 def test_the_paired_change_refuses_repeated_or_incomplete_runs(tmp_path):
     paired = load("paired")
     twice = _write(tmp_path / "twice.jsonl", [_record("standard", 168, 0, 0, 1.0, 2.0)] * 2)
