@@ -223,7 +223,9 @@ def twice(rec: Path, root: Path, cache: Path) -> tuple[Path, dict]:
             raise RuntimeError(f"posetrack track failed:\n{proc.stderr[-3000:]}")
         walls.append(round(time.perf_counter() - t0, 1))
     a, b = (_files(out) for out in outs)
-    different = sorted(k for k in a.keys() | b.keys() if k != "summary.json" and a.get(k) != b.get(k))
+    different = sorted(
+        k for k in a.keys() | b.keys() if k != "summary.json" and a.get(k) != b.get(k)
+    )
     import hashlib
 
     return outs[0], {

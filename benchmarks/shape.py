@@ -171,7 +171,8 @@ def main() -> None:
             f"{n}={row[n]['D_mm']:.1f}" for n in names if "D_mm" in row[n]
         )  # fmt: skip
         print(
-            f"seed {seed} {motion:6s} occ {occ} {variety or '':5s} base D={row['baseline']['D_mm']:.1f}"
+            f"seed {seed} {motion:6s} occ {occ} {variety or '':5s} "
+            f"base D={row['baseline']['D_mm']:.1f}"
             f" {parts}  ({time.perf_counter() - t0:.0f} s)",
             flush=True,
         )
@@ -182,7 +183,8 @@ def main() -> None:
         groups["variety wide"] = [r for r in rows if r["variety"] == "wide"]
     summaries = {g: summarise(rs, names) for g, rs in groups.items() if rs}
     for g, s in summaries.items():
-        print_table(f"{'TUNING' if args.tune else 'REPORT'} seeds, {g} ({s['baseline']['clips']} clips)", s)
+        kind = "TUNING" if args.tune else "REPORT"
+        print_table(f"{kind} seeds, {g} ({s['baseline']['clips']} clips)", s)
     payload = {
         "machine": machine_summary(),
         "seeds": "TUNING_SEEDS" if args.tune else "REPORT_SEEDS",

@@ -465,8 +465,7 @@ def refine_programs(
         f32((frames, 18, 2)), f32((frames, 18)),
     )  # fmt: skip
     maps = jax.eval_shape(_observe_frames.fn, *observe_args)
-    z_d, small_intr = maps[0], maps[-1]
-    size = z_d.shape[1:]
+    size = maps[0].shape[1:]
     frames_sig = jax.eval_shape(
         lambda *m: _frames_from_maps(
             *m[:6], m[-1], np.zeros((frames, 2), int), size, np.zeros(frames, np.float32)
@@ -503,8 +502,9 @@ def _windows(z_fg, caps, small_intr: Intrinsics, margin: int, step: int):
             hi = [max(hi[0], rows.max()), max(hi[1], cols.max())]
         boxes.append((*lo, *hi))
     boxes = np.asarray(boxes)
-    size_h = min(H, -(-int(np.ceil(np.max(boxes[:, 2] - boxes[:, 0])) + 1 + 2 * margin) // step) * step)
-    size_w = min(W, -(-int(np.ceil(np.max(boxes[:, 3] - boxes[:, 1])) + 1 + 2 * margin) // step) * step)
+    span = np.ceil(np.max(boxes[:, 2:] - boxes[:, :2], axis=0)).astype(int) + 1 + 2 * margin
+    size_h = min(H, -(-int(span[0]) // step) * step)
+    size_w = min(W, -(-int(span[1]) // step) * step)
     centre = 0.5 * (boxes[:, :2] + boxes[:, 2:])
     r0 = np.clip(np.round(centre[:, 0] - size_h / 2), 0, H - size_h).astype(int)
     c0 = np.clip(np.round(centre[:, 1] - size_w / 2), 0, W - size_w).astype(int)
@@ -622,7 +622,9 @@ def refine_shape(
         )
     if isinstance(floor, str):
         if floor != "auto":
-            raise ValueError(f"refine_shape: floor must be 'auto', None or 4 numbers, got {floor!r}")
+            raise ValueError(
+                f"refine_shape: floor must be 'auto', None or 4 numbers, got {floor!r}"
+            )
         floor = _floor_for(D[0], intrinsics, P[0]) if config.use_floor else NO_FLOOR
     elif floor is None:
         floor = NO_FLOOR

@@ -46,10 +46,15 @@ from ._geometry import surface_offsets
 from ._init import estimate_shape, initial_pose
 from ._inputs import check_depth, check_frame, check_people
 from ._observe import Landmarks, observed_share
-from ._result import TrackResult, keypoint_confidence
 from ._programs import (
-    Program, device_f32, device_key, prepare_in_background, prepare_now, program,
+    Program,
+    device_f32,
+    device_key,
+    prepare_in_background,
+    prepare_now,
+    program,
 )
+from ._result import TrackResult, keypoint_confidence
 from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
 from ._sides import (
     SideLabeller,

@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 
 from posetrack import synth
-from posetrack.app import Progress, ProgressBar
-from posetrack.app import _progress
+from posetrack.app import Progress, ProgressBar, _progress
 
 
 class FakeTerminal(io.StringIO):

@@ -204,7 +204,8 @@ def test_bad_input_raises_naming_the_argument(data, change, name):
 
 @pytest.mark.parametrize(
     "kw, name",
-    [(dict(steps=0), "steps"), (dict(fields=("tail",)), "fields"), (dict(prior_sigma=0.0), "prior_sigma"),
+    [(dict(steps=0), "steps"), (dict(fields=("tail",)), "fields"),
+     (dict(prior_sigma=0.0), "prior_sigma"),
      (dict(radius_prior_sigma=-0.1), "radius_prior_sigma"),
      (dict(radius_prior_sigma=float("nan")), "radius_prior_sigma"),
      (dict(girth_prior_sigma=0.0), "girth_prior_sigma")],

@@ -693,8 +693,8 @@ def test_wide_detector_swaps_last_many_frames():
         kp, _ = ps.simulate_detector(np.random.default_rng(seed), gt, ones, 0 * ones, vis,
                                      width=320, height=320, config=cfg)
         lengths = []
-        for r, l in ((4, 7), (10, 13)):
-            swapped = np.linalg.norm(kp[:, r] - gt[:, l], axis=-1) < 5
+        for r, left in ((4, 7), (10, 13)):
+            swapped = np.linalg.norm(kp[:, r] - gt[:, left], axis=-1) < 5
             starts, n = _runs(swapped)
             lengths += list(n[starts + n < T])  # complete episodes only
         assert len(lengths) > 3 and min(lengths) >= lo, seed
@@ -722,8 +722,8 @@ def test_whole_body_swaps_and_limb_snaps():
                                  width=320, height=320, config=cfg)
     body = near(kp, 2, 5)  # right shoulder reported on the left one
     assert 0.03 < body.mean() < 0.5
-    for r, l in ((2, 5), (4, 7), (8, 11), (13, 10), (16, 17)):  # all pairs at once
-        np.testing.assert_array_equal(near(kp, r, l), body)
+    for r, left in ((2, 5), (4, 7), (8, 11), (13, 10), (16, 17)):  # all pairs at once
+        np.testing.assert_array_equal(near(kp, r, left), body)
     assert _runs(body)[1].min() >= 5
     cfg = ps.DetectorConfig(snap_rate=0.01, **off)
     kp, conf = ps.simulate_detector(np.random.default_rng(0), gt, ones, 0 * ones, vis,

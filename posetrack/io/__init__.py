@@ -49,9 +49,9 @@ from ._rgb import write_rgb as write_rgb
 from ._trc import read_trc as read_trc
 from ._trc import write_trc as write_trc
 from ._tum import TUM_CAMERAS as TUM_CAMERAS
-from ._tum import TUM_REGISTERED_DEPTH as TUM_REGISTERED_DEPTH
 from ._tum import TUM_DEPTH_SCALE as TUM_DEPTH_SCALE
 from ._tum import TUM_MAX_DIFFERENCE as TUM_MAX_DIFFERENCE
+from ._tum import TUM_REGISTERED_DEPTH as TUM_REGISTERED_DEPTH
 from ._tum import associate_timestamps as associate_timestamps
 from ._tum import read_tum_list as read_tum_list
 
