@@ -151,8 +151,11 @@ class FollowSettings:
     version (the gate only) answers 95 % of the hop's frames; a screen of 186 fresh runs
     failed it on one occluded walk across (+32.5 mm on the frames both answer under tracker
     seed 0, -0.9 over seeds 1-3: a re-acquisition a frame earlier sends the track elsewhere),
-    while 6 runs answered more frames. Opt-in until a screen that pools tracker seeds
-    (benchmarks/README "The only person in view, refused"). Not in the paper."""
+    while 6 runs answered more frames. The third version's screen pooled three tracker
+    seeds (260 fresh runs) and failed too: 48 runs changed, answered frames +2.3 %, D -0.41
+    mm on the frames both answer, but one occluded walk across answered 30 % fewer frames
+    and another was 26.7 mm worse (benchmarks/README "The pooled screen"). Opt-in. Not in
+    the paper."""
 
     @classmethod
     def for_mode(cls, mode: str, **changes) -> FollowSettings:
