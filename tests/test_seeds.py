@@ -321,25 +321,29 @@ def test_the_paired_change_reads_a_missing_acceleration_as_nan():
     assert run["change"] == -10.0
 
 
+def _alone_record(seed, tseed, base, cand, shared):
+    """One decide.py record of ``default`` and ``alone30``: ``base`` and ``cand`` are (D,
+    coverage, swaps), ``shared`` (frames, candidate D, baseline D, candidate swaps, baseline
+    swaps) on the frames both answered."""
+    return {
+        "group": "walk_across", "seed": seed, "motion": "walk", "occ": 2, "tseed": tseed,
+        "default": {"D": base[0], "cov": base[1], "swaps": base[2], "accel": 4.0},
+        "alone30": {"D": cand[0], "cov": cand[1], "swaps": cand[2], "accel": 5.0,
+                    "shared": {"vs": "default", "frames": shared[0], "D": shared[1],
+                               "base_D": shared[2], "swaps": shared[3],
+                               "base_swaps": shared[4]}},
+    }  # fmt: skip
+
+
 def test_the_changed_runs_of_a_rare_event_and_the_frames_only_the_candidate_answers():
     paired = load("paired")
-
-    def rec(seed, base, cand, shared):
-        return {
-            "group": "walk_across", "seed": seed, "motion": "walk", "occ": 2, "tseed": 0,
-            "default": {"D": base[0], "cov": base[1], "swaps": base[2], "accel": 3.0},
-            "alone30": {"D": cand[0], "cov": cand[1], "swaps": cand[2], "accel": 5.0,
-                        "shared": {"vs": "default", "frames": shared[0], "D": shared[1],
-                                   "base_D": base[0], "swaps": shared[2],
-                                   "base_swaps": base[2]}},
-        }  # fmt: skip
-
+    rec = _alone_record
     records = [
-        rec(1, (50.0, 1.0, 0), (50.0, 1.0, 0), (10, 50.0, 0)),  # identical: not changed
+        rec(1, 0, (50.0, 1.0, 0), (50.0, 1.0, 0), (10, 50.0, 50.0, 0, 0)),  # not changed
         # 4 of 10 frames answered -> 10; the shared 4 at 90 mm, the own 10 at 66 mm, so the
         # 6 new frames hold (66 * 10 - 90 * 4) / 6 = 50 mm
-        rec(2, (100.0, 0.4, 2), (66.0, 1.0, 1), (4, 90.0, 1)),
-        rec(3, (40.0, 1.0, 0), (70.0, 1.0, 3), (10, 70.0, 3)),  # the same frames, worse
+        rec(2, 0, (100.0, 0.4, 2), (66.0, 1.0, 1), (4, 90.0, 100.0, 1, 2)),
+        rec(3, 0, (40.0, 1.0, 0), (70.0, 1.0, 3), (10, 70.0, 40.0, 3, 0)),  # same frames, worse
     ]
     rows = {r["seed"]: r for r in paired.changed(records, "default", "alone30", frames=10)}
     assert set(rows) == {2, 3}
@@ -351,17 +355,7 @@ def test_the_changed_runs_of_a_rare_event_and_the_frames_only_the_candidate_answ
 
 def test_the_pooled_changed_runs_average_the_seeds_that_share_enough_frames():
     paired = load("paired")
-
-    def rec(seed, tseed, base, cand, shared):
-        return {
-            "group": "wide real", "seed": seed, "motion": "m", "occ": 2, "tseed": tseed,
-            "default": {"D": base[0], "cov": base[1], "swaps": base[2], "accel": 4.0},
-            "alone30": {"D": cand[0], "cov": cand[1], "swaps": cand[2], "accel": 5.0,
-                        "shared": {"vs": "default", "frames": shared[0], "D": shared[1],
-                                   "base_D": shared[2], "swaps": shared[3],
-                                   "base_swaps": shared[4]}},
-        }  # fmt: skip
-
+    rec = _alone_record
     same = ((50.0, 1.0, 0), (50.0, 1.0, 0), (100, 50.0, 50.0, 0, 0))
     records = [
         rec(1, 0, *same), rec(1, 1, *same),  # unchanged: counts in the mean at 0
