@@ -158,25 +158,30 @@ def changed(records: list[dict], base: str, candidate: str, frames: int) -> list
     counts joints, so this is approximate where a frame holds some joints only) and the D of
     the frames only the candidate answered (``new_D``, from its own-frame and shared-frame D
     weighted by those counts; nan where it answered none more)."""
-    out = []
-    for rec in records:
-        b, c = rec[base], rec[candidate]
-        if all(_same(b[m], c[m]) for m in ("D", "cov", "swaps")):
-            continue
-        s = _measures(rec, base, candidate, True)
-        n_b, n_c = _answered(b, frames), _answered(c, frames)
-        n_s = rec[candidate]["shared"]["frames"]
-        new = n_c - n_s
-        new_D = (c["D"] * n_c - s[1]["D"] * n_s) / new if new > 0 else math.nan
-        out.append({
-            "group": rec["group"], "seed": rec["seed"], "motion": rec["motion"],
-            "occ": rec["occ"], "tseed": rec["tseed"], "shared_frames": n_s,
-            "base_frames": n_b, "candidate_frames": n_c,
-            "base_shared_D": s[0]["D"], "candidate_shared_D": s[1]["D"],
-            "change": s[1]["D"] - s[0]["D"], "new_D": new_D,
-            "base_swaps": s[0]["swaps"], "candidate_swaps": s[1]["swaps"],
-        })  # fmt: skip
-    return out
+    return [_seed_change(r, base, candidate, frames) for r in records if _moved(r, base, candidate)]
+
+
+def _moved(rec: dict, base: str, candidate: str) -> bool:
+    """Whether ``candidate`` differs from ``base`` in D, coverage or swapped-limb frames."""
+    return not all(_same(rec[base][m], rec[candidate][m]) for m in ("D", "cov", "swaps"))
+
+
+def _seed_change(rec: dict, base: str, candidate: str, frames: int) -> dict:
+    """One record's row of :func:`changed`."""
+    b, c = rec[base], rec[candidate]
+    s = _measures(rec, base, candidate, True)
+    n_b, n_c = _answered(b, frames), _answered(c, frames)
+    n_s = c["shared"]["frames"]
+    new = n_c - n_s
+    new_D = (c["D"] * n_c - s[1]["D"] * n_s) / new if new > 0 else math.nan
+    return {
+        "group": rec["group"], "seed": rec["seed"], "motion": rec["motion"],
+        "occ": rec["occ"], "tseed": rec["tseed"], "shared_frames": n_s,
+        "base_frames": n_b, "candidate_frames": n_c,
+        "base_shared_D": s[0]["D"], "candidate_shared_D": s[1]["D"],
+        "change": s[1]["D"] - s[0]["D"], "new_D": new_D,
+        "base_swaps": s[0]["swaps"], "candidate_swaps": s[1]["swaps"],
+    }  # fmt: skip
 
 
 def pooled_changed(
@@ -203,37 +208,30 @@ def pooled_changed(
     rows, all_changes = [], []
     new_sum = new_n = shared_sum = shared_n = 0.0
     for (group, seed, motion, occ), recs in runs.items():
-        moved = [
-            not all(_same(r[base][m], r[candidate][m]) for m in ("D", "cov", "swaps")) for r in recs
-        ]
-        per_seed = []
-        for r in recs:
-            s = r[candidate]["shared"]
-            if s["frames"] >= min_shared:
-                per_seed.append(s["D"] - s["base_D"])
-        change = float(np.mean(per_seed)) if per_seed else math.nan
-        if per_seed:
+        seeds = [_seed_change(r, base, candidate, frames) for r in recs]
+        kept = [x["change"] for x in seeds if x["shared_frames"] >= min_shared]
+        change = float(np.mean(kept)) if kept else math.nan
+        if kept:
             all_changes.append(change)
-        if not any(moved):
+        moved = sum(_moved(r, base, candidate) for r in recs)
+        if not moved:
             continue
-        for r in recs:
-            s = r[candidate]["shared"]
-            n_c, n_s = _answered(r[candidate], frames), s["frames"]
-            if n_c > n_s:  # the D of the frames only the candidate answered
-                new_sum += r[candidate]["D"] * n_c - s["D"] * n_s
-                new_n += n_c - n_s
-            if n_s > 0:
-                shared_sum += s["D"] * n_s
-                shared_n += n_s
+        for x in seeds:
+            new = x["candidate_frames"] - x["shared_frames"]
+            if new > 0:  # the frames only the candidate answered
+                new_sum += x["new_D"] * new
+                new_n += new
+            if x["shared_frames"]:
+                shared_sum += x["candidate_shared_D"] * x["shared_frames"]
+                shared_n += x["shared_frames"]
         rows.append({
             "group": group, "seed": seed, "motion": motion, "occ": occ,
-            "tseeds": sorted(r["tseed"] for r in recs), "seeds_changed": sum(moved),
-            "seeds_counted": len(per_seed),
-            "base_frames": sum(_answered(r[base], frames) for r in recs),
-            "candidate_frames": sum(_answered(r[candidate], frames) for r in recs),
+            "tseeds": sorted(r["tseed"] for r in recs), "seeds_changed": moved,
+            "seeds_counted": len(kept),
+            "base_frames": sum(x["base_frames"] for x in seeds),
+            "candidate_frames": sum(x["candidate_frames"] for x in seeds),
             "change": change,
-            "swaps": [sum(r[candidate]["shared"][k] for r in recs)
-                      for k in ("base_swaps", "swaps")],
+            "swaps": [sum(x[k] for x in seeds) for k in ("base_swaps", "candidate_swaps")],
             "own_swaps": [sum(r[v]["swaps"] for r in recs) for v in (base, candidate)],
         })  # fmt: skip
     counted = [r for r in rows if not math.isnan(r["change"])]
