@@ -215,6 +215,14 @@ def settings(variant: str, mode: str = "offline") -> dict:
             return {"config": pt.TrackerConfig(far_side_bound=True, bound_turn_sin=turn)}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("partial") or "-partial" in variant:
+        # partialN: TrackerConfig(reinit_partial_frames=N); aloneM-partialN: with aloneM
+        rest, _, frames = variant.rpartition("partial")
+        try:
+            out = {"config": pt.TrackerConfig(reinit_partial_frames=int(frames))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+        return {**(settings(rest.removesuffix("-"), mode) if rest else {}), **out}
     if variant.startswith("alone"):  # aloneN: the mode's follower, alone_frames=N
         try:
             return {"follow": pt.FollowSettings.for_mode(mode, alone_frames=int(variant[5:]))}

@@ -315,6 +315,16 @@ class TrackerConfig(eqx.Module):
     fresh tuning runs online: 5 changed, D -0.63 mm, but one lost clip 24 mm worse where the
     rule allowed 20; benchmarks/README.md, "A longer look back for the re-initialisation's
     fit check"), so it is not the default."""
+    reinit_partial_frames: int = eqx.field(default=0, static=True)
+    """> 0: a re-initialisation at most this many frames after a track loss that sees no
+    left/right pair with depth (neither both shoulders nor both hips: a side view, the far
+    side hidden by the body, or an occluder) starts from the lost track's pose, moved onto the
+    landmarks it does see, instead of waiting for a frame that shows a pair (host side; the
+    usual initial fit and loss tests follow). 0 (the default): it waits, as a partial restart
+    facing the camera was measured to do more harm than good. A person walking across a side
+    view under occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51
+    frames for one (benchmarks/README.md, "A restart from the lost pose"). Not in the
+    paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -393,7 +403,7 @@ class TrackerConfig(eqx.Module):
                 f"TrackerConfig.reinit_check_fit must be True or False, got "
                 f"{self.reinit_check_fit!r}"
             )
-        for name in ("reinit_keep_facing", "reinit_check_frames"):
+        for name in ("reinit_keep_facing", "reinit_check_frames", "reinit_partial_frames"):
             n = getattr(self, name)
             if n is None and name == "reinit_check_frames":
                 continue

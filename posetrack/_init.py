@@ -185,3 +185,18 @@ def initial_pose(
             d_lower = R_upper.T @ R0.T @ (P[c] - P[b])
             joints[j + 1] = quat_between(down, d_lower)
     return np.concatenate([root, q_root, joints.reshape(-1)])
+
+
+def pose_moved_onto(
+    params: np.ndarray, model_keypoints: np.ndarray, points3d: np.ndarray, has_depth: np.ndarray
+) -> np.ndarray | None:
+    """``params`` (43,) with its root moved by the mean offset from its ``model_keypoints``
+    (18, 3) to the landmarks ``points3d`` (18, 3) that have depth; None without any. A restart
+    from a known pose where the landmarks alone cannot orient the body (no left/right pair)."""
+    F = np.asarray(has_depth, dtype=bool)
+    if not F.any():
+        return None
+    P, K = np.asarray(points3d, np.float64), np.asarray(model_keypoints, np.float64)
+    out = np.array(params, dtype=np.float64)
+    out[:3] += np.mean(P[F] - K[F], axis=0)
+    return out

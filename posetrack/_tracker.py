@@ -43,7 +43,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
-from ._init import estimate_shape, initial_pose
+from ._init import estimate_shape, initial_pose, pose_moved_onto
 from ._inputs import check_depth, check_frame, check_people
 from ._observe import Landmarks, observed_share
 from ._programs import (
@@ -843,10 +843,15 @@ class Tracker:
         # a re-initialisation after a loss waits for a torso, since a partial restart that
         # throws away the track's history was measured to do more harm than good.
         def start(lm):
-            return initial_pose(
+            p0 = initial_pose(
                 np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
                 allow_partial=not self._ever_initialized,
             )  # fmt: skip
+            if p0 is None and self._recently_dropped(self.config.reinit_partial_frames):
+                p0 = pose_moved_onto(
+                    *self._dropped_pose(), np.asarray(lm.points3d), np.asarray(lm.has_depth)
+                )
+            return p0
 
         def flip_start() -> None:
             # Read as facing away right after a loss: a detector's whole-body swap, not a
@@ -913,6 +918,24 @@ class Tracker:
         self._lost_run = 0
         self._ever_initialized = True
         return True
+
+    def _recently_dropped(self, window: int) -> bool:
+        """Whether the track was lost at most ``window`` frames ago and not restarted since."""
+        return (
+            window > 0
+            and self._dropped is not None
+            and self._state is None
+            and self._frames_seen - self._dropped[0] <= window
+        )
+
+    def _dropped_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The pose at the last track loss and (approximately) its 18 keypoints: those of the
+        hypothesis nearest to it (the state keeps each hypothesis' model keypoints)."""
+        state = resolve(self._dropped[1])
+        best = np.asarray(state.best, np.float64)
+        hyps = np.asarray(state.hypotheses, np.float64)
+        h = int(np.argmin(np.sum((hyps - best) ** 2, axis=-1)))
+        return best, np.asarray(state.previous, np.float64)[h]
 
     def _faces_away_from_drop(self, params: np.ndarray, window: int | None = None) -> bool:
         """Whether ``params``, a re-initialisation at most ``window`` frames (default

@@ -250,6 +250,50 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
             TrackerConfig(reinit_check_frames=bad)
 
 
+def test_reinit_partial_frames_restarts_from_the_lost_pose_without_a_left_right_pair(seq):
+    """After a loss, a frame that shows neither both shoulders nor both hips (the far side
+    hidden, as in a side view) cannot orient a new body: by default the re-initialisation
+    waits; with ``reinit_partial_frames`` it starts from the pose at the loss, moved onto the
+    landmarks it sees, within that many frames of the loss only, and fits the seen joints."""
+    far = [5, 6, 7, 11, 12, 13]  # left shoulder, elbow, wrist, hip, knee, ankle
+    conf = np.array(seq.confidence[1], copy=True)
+    conf[far] = 0.0
+    frame = (seq.depth[1], seq.keypoints2d[1], conf)
+
+    def left(params):
+        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+
+    def restart(frames: int, later: int = 0):
+        config = LVM.replace(reinit_partial_frames=frames)
+        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        tracker._drop_track()  # what lost_patience lost frames in a row do
+        tracker._frames_seen += later
+        return tracker, before, tracker.initialize(*frame)
+
+    assert not restart(0)[2]  # the default waits for a pair
+    assert not restart(10, later=11)[2]  # too long after the loss
+    tracker, before, ok = restart(10)
+    assert ok
+    after = np.asarray(tracker.state.best)
+    assert left(before) @ left(after) > 0.9
+    seen = [i for i in range(14) if i not in far]
+    fitted = np.asarray(pt.keypoints(tracker.shape, after))[seen]
+    error = np.linalg.norm(fitted - seq.joints3d[1][seen], axis=-1)
+    assert np.median(error) < 0.08, error
+    # The start itself: the pose at the loss moved by the seen landmarks' mean offset.
+    P = np.zeros((18, 3))
+    P[3] = [1.0, 2.0, 3.0]
+    moved = _tracker.pose_moved_onto(before, P - [0.1, 0.0, 0.0], P, np.arange(18) == 3)
+    np.testing.assert_allclose(moved[:3] - before[:3], [0.1, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_array_equal(moved[3:], before[3:])
+    assert _tracker.pose_moved_onto(before, P, P, np.zeros(18, bool)) is None
+    for bad in (-1, True, 2.0):
+        with pytest.raises(ValueError, match="reinit_partial_frames"):
+            TrackerConfig(reinit_partial_frames=bad)
+
+
 def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
     """The 2D half of the re-initialisation's facing test: a whole-body swap's shoulders and
     hips sit on the other side's last positions; a limb's swap, or a frame where neither
