@@ -318,9 +318,10 @@ class TrackerConfig(eqx.Module):
     reinit_partial_frames: int = eqx.field(default=0, static=True)
     """> 0: a re-initialisation at most this many frames after a track loss that sees no
     left/right pair with depth (neither both shoulders nor both hips: a side view, the far
-    side hidden by the body, or an occluder) starts from the lost track's pose, moved onto the
-    landmarks it does see, instead of waiting for a frame that shows a pair (host side; the
-    usual initial fit and loss tests follow). 0 (the default): it waits, as a partial restart
+    side hidden by the body, or an occluder) starts from the pose of the last frame judged
+    tracked, if that was at most N frames ago, moved onto the landmarks it does see, instead
+    of waiting for a frame that shows a pair (host side; the usual initial fit and loss tests
+    follow; never from a pose that failed the loss tests). 0 (the default): it waits, as a partial restart
     facing the camera was measured to do more harm than good. A person walking across a side
     view under occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51
     frames for one (benchmarks/README.md, "A restart from the lost pose"). Not in the

@@ -436,6 +436,9 @@ class Tracker:
         # confidences (18,) as fitted in the last tracked frame.
         self._dropped: tuple | None = None
         self._last_tracked_kp: tuple | None = None
+        # (frame, pose (43,), keypoints (18, 3)) of the last frame judged tracked: where a
+        # re-initialisation without a left/right pair starts (reinit_partial_frames).
+        self._last_tracked_pose: tuple | None = None
         self.reinit_flip_frames: tuple[int, ...] = ()
         """Frames (0-based, as counted by :meth:`update` and :meth:`run`; since the last
         :meth:`run`) whose re-initialisation exchanged every left/right pair to keep the lost
@@ -705,6 +708,7 @@ class Tracker:
         self._forget_person()
         self._ever_initialized = False
         self._dropped = None
+        self._last_tracked_pose = None
 
     def _drop_track(self) -> None:
         """Forget the hypotheses after a loss; keep who is followed."""
@@ -847,10 +851,11 @@ class Tracker:
                 np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
                 allow_partial=not self._ever_initialized,
             )  # fmt: skip
-            if p0 is None and self._recently_dropped(self.config.reinit_partial_frames):
+            if p0 is None and self._recently_tracked(self.config.reinit_partial_frames):
                 p0 = pose_moved_onto(
-                    *self._dropped_pose(), np.asarray(lm.points3d), np.asarray(lm.has_depth)
-                )
+                    *self._last_tracked_pose[1:], np.asarray(lm.points3d),
+                    np.asarray(lm.has_depth),
+                )  # fmt: skip
             return p0
 
         def flip_start() -> None:
@@ -919,23 +924,15 @@ class Tracker:
         self._ever_initialized = True
         return True
 
-    def _recently_dropped(self, window: int) -> bool:
-        """Whether the track was lost at most ``window`` frames ago and not restarted since."""
+    def _recently_tracked(self, window: int) -> bool:
+        """Whether the track, now lost, was last judged tracked at most ``window`` frames ago
+        (a pose that failed the loss tests is no place to restart from)."""
         return (
             window > 0
-            and self._dropped is not None
             and self._state is None
-            and self._frames_seen - self._dropped[0] <= window
+            and self._last_tracked_pose is not None
+            and self._frames_seen - self._last_tracked_pose[0] <= window
         )
-
-    def _dropped_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """The pose at the last track loss and (approximately) its 18 keypoints: those of the
-        hypothesis nearest to it (the state keeps each hypothesis' model keypoints)."""
-        state = resolve(self._dropped[1])
-        best = np.asarray(state.best, np.float64)
-        hyps = np.asarray(state.hypotheses, np.float64)
-        h = int(np.argmin(np.sum((hyps - best) ** 2, axis=-1)))
-        return best, np.asarray(state.previous, np.float64)[h]
 
     def _faces_away_from_drop(self, params: np.ndarray, window: int | None = None) -> bool:
         """Whether ``params``, a re-initialisation at most ``window`` frames (default
@@ -1244,6 +1241,7 @@ class Tracker:
         self._lost_run = 0
         self._follower.tracked(cands, p)
         self._last_tracked_kp = (kp, conf)
+        self._last_tracked_pose = (self._frames_seen, est.params, est.keypoints3d)
         return est, TRACKED
 
     def run(
@@ -1561,6 +1559,7 @@ class Tracker:
                 if st == TRACKED:
                     self._follower.tracked(f.cands, f.person_index)
                     self._last_tracked_kp = (f.kp, f.conf)
+                    self._last_tracked_pose = (f.host[-1], est.params, est.keypoints3d)
             self._record_frame(
                 out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
                 f.person, f.depth, held=None if dropped else res.held[i],
@@ -1847,14 +1846,14 @@ class Tracker:
             self._key, self._frames_seen,
             copy.deepcopy(self._follower, keep), copy.deepcopy(self._labeller),
             copy.deepcopy(self._duplicate_filter), self._dropped, self.reinit_flip_frames,
-            self._last_tracked_kp,
+            self._last_tracked_kp, self._last_tracked_pose,
         )  # fmt: skip
 
     def _restore(self, snap: tuple) -> None:
         (
             self._state, self._floor, self._found_floor, self._lost_run, self._ever_initialized,
             self._key, self._frames_seen, follower, labeller, duplicate_filter, self._dropped,
-            self.reinit_flip_frames, self._last_tracked_kp,
+            self.reinit_flip_frames, self._last_tracked_kp, self._last_tracked_pose,
         ) = snap  # fmt: skip
         keep = {id(self.intrinsics): self.intrinsics}
         self._follower = copy.deepcopy(follower, keep)

@@ -253,8 +253,9 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
 def test_reinit_partial_frames_restarts_from_the_lost_pose_without_a_left_right_pair(seq):
     """After a loss, a frame that shows neither both shoulders nor both hips (the far side
     hidden, as in a side view) cannot orient a new body: by default the re-initialisation
-    waits; with ``reinit_partial_frames`` it starts from the pose at the loss, moved onto the
-    landmarks it sees, within that many frames of the loss only, and fits the seen joints."""
+    waits; with ``reinit_partial_frames`` it starts from the last tracked pose, moved onto the
+    landmarks it sees, within that many frames of it only (never from a pose judged lost),
+    and fits the seen joints."""
     far = [5, 6, 7, 11, 12, 13]  # left shoulder, elbow, wrist, hip, knee, ankle
     conf = np.array(seq.confidence[1], copy=True)
     conf[far] = 0.0
@@ -263,17 +264,20 @@ def test_reinit_partial_frames_restarts_from_the_lost_pose_without_a_left_right_
     def left(params):
         return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
 
-    def restart(frames: int, later: int = 0):
+    def restart(frames: int, later: int = 0, status: int = TRACKED):
         config = LVM.replace(reinit_partial_frames=frames)
+        if status == LOST:  # every frame fails the loss test
+            config = config.replace(lost_delta=0.0)
         tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
-        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == status
         before = np.asarray(tracker.state.best)
         tracker._drop_track()  # what lost_patience lost frames in a row do
         tracker._frames_seen += later
         return tracker, before, tracker.initialize(*frame)
 
     assert not restart(0)[2]  # the default waits for a pair
-    assert not restart(10, later=11)[2]  # too long after the loss
+    assert not restart(10, later=11)[2]  # too long after the last tracked frame
+    assert not restart(10, status=LOST)[2]  # no tracked pose to start from
     tracker, before, ok = restart(10)
     assert ok
     after = np.asarray(tracker.state.best)
@@ -282,7 +286,7 @@ def test_reinit_partial_frames_restarts_from_the_lost_pose_without_a_left_right_
     fitted = np.asarray(pt.keypoints(tracker.shape, after))[seen]
     error = np.linalg.norm(fitted - seq.joints3d[1][seen], axis=-1)
     assert np.median(error) < 0.08, error
-    # The start itself: the pose at the loss moved by the seen landmarks' mean offset.
+    # The start itself: a pose moved by the seen landmarks' mean offset.
     P = np.zeros((18, 3))
     P[3] = [1.0, 2.0, 3.0]
     moved = _tracker.pose_moved_onto(before, P - [0.1, 0.0, 0.0], P, np.arange(18) == 3)
