@@ -316,16 +316,15 @@ class TrackerConfig(eqx.Module):
     rule allowed 20; benchmarks/README.md, "A longer look back for the re-initialisation's
     fit check"), so it is not the default."""
     reinit_partial_frames: int = eqx.field(default=0, static=True)
-    """> 0: a re-initialisation at most this many frames after a track loss that sees no
-    left/right pair with depth (neither both shoulders nor both hips: a side view, the far
-    side hidden by the body, or an occluder) starts from the pose of the last frame judged
-    tracked, if that was at most N frames ago, moved onto the landmarks it does see, instead
-    of waiting for a frame that shows a pair (host side; the usual initial fit and loss tests
-    follow; never from a pose that failed the loss tests). 0 (the default): it waits, as a partial restart
-    facing the camera was measured to do more harm than good. A person walking across a side
-    view under occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51
-    frames for one (benchmarks/README.md, "A restart from the lost pose"). Not in the
-    paper."""
+    """> 0: a re-initialisation after a track loss that sees no left/right pair with depth
+    (neither both shoulders nor both hips: a side view, the far side hidden by the body, or an
+    occluder) starts from the pose of the last frame judged tracked, if that was at most this
+    many frames ago, moved onto the landmarks it does see, instead of waiting for a frame that
+    shows a pair (host side; the usual initial fit and loss tests follow; never from a pose
+    that failed the loss tests). 0 (the default): it waits, as a partial restart facing the
+    camera was measured to do more harm than good. A person walking across a side view under
+    occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51 frames for one
+    (benchmarks/README.md, "A restart from the lost pose"). Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
