@@ -43,7 +43,7 @@ from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
 from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
-from ._init import estimate_shape, initial_pose
+from ._init import estimate_shape, initial_pose, pose_moved_onto
 from ._inputs import check_depth, check_frame, check_people
 from ._observe import Landmarks, observed_share
 from ._programs import (
@@ -436,8 +436,8 @@ class Tracker:
         # confidences (18,) as fitted in the last tracked frame.
         self._dropped: tuple | None = None
         self._last_tracked_kp: tuple | None = None
-        # (frame, pose (43,)) of the last frame judged tracked: the facing a
-        # re-initialisation without a left/right pair starts with (reinit_partial_frames).
+        # (frame, pose (43,), keypoints (18, 3)) of the last frame judged tracked: where a
+        # re-initialisation without a left/right pair starts (reinit_partial_frames).
         self._last_tracked_pose: tuple | None = None
         self.reinit_flip_frames: tuple[int, ...] = ()
         """Frames (0-based, as counted by :meth:`update` and :meth:`run`; since the last
@@ -846,20 +846,16 @@ class Tracker:
         # The very first start may be partial (heavily occluded sequences must start somehow);
         # a re-initialisation after a loss waits for a torso, since a partial restart that
         # throws away the track's history was measured to do more harm than good.
-        hinted = []  # the start's left axis where it came from the last tracked pose
-
         def start(lm):
-            hinted.clear()
-            points, has_depth = np.asarray(lm.points3d), np.asarray(lm.has_depth)
             p0 = initial_pose(
-                points, has_depth, self.shape, allow_partial=not self._ever_initialized
-            )
+                np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
+                allow_partial=not self._ever_initialized,
+            )  # fmt: skip
             if p0 is None and self._recently_tracked(self.config.reinit_partial_frames):
-                # No left/right pair: the body's axes from the last tracked pose (its facing
-                # only: its limbs may have drifted before the loss).
-                R = quat_to_matrix(np.asarray(self._last_tracked_pose[1][3:7], np.float64))
-                p0 = initial_pose(points, has_depth, self.shape, axes=(R[:, 0], R[:, 1]))
-                hinted.append(R[:, 0])
+                p0 = pose_moved_onto(
+                    *self._last_tracked_pose[1:], np.asarray(lm.points3d),
+                    np.asarray(lm.has_depth),
+                )  # fmt: skip
             return p0
 
         def flip_start() -> None:
@@ -910,10 +906,6 @@ class Tracker:
                     (res, kps, keys), params = fit_x, params_x
                     flip_start()
         if not np.all(np.isfinite(params)):
-            return False
-        if hinted and quat_to_matrix(params[3:7].astype(np.float64))[:, 0] @ hinted[0] < 0:
-            # A start oriented by the last tracked pose whose fit turned round on the few
-            # landmarks of a side view: not a start to trust; wait for a frame that orients.
             return False
         floor = self._fit_floor(depth_m, params)
         self._floor = device_f32(floor)
@@ -1249,7 +1241,7 @@ class Tracker:
         self._lost_run = 0
         self._follower.tracked(cands, p)
         self._last_tracked_kp = (kp, conf)
-        self._last_tracked_pose = (self._frames_seen, est.params)
+        self._last_tracked_pose = (self._frames_seen, est.params, est.keypoints3d)
         return est, TRACKED
 
     def run(
@@ -1567,7 +1559,7 @@ class Tracker:
                 if st == TRACKED:
                     self._follower.tracked(f.cands, f.person_index)
                     self._last_tracked_kp = (f.kp, f.conf)
-                    self._last_tracked_pose = (f.host[-1], est.params)
+                    self._last_tracked_pose = (f.host[-1], est.params, est.keypoints3d)
             self._record_frame(
                 out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
                 f.person, f.depth, held=None if dropped else res.held[i],
