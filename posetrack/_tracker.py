@@ -845,7 +845,8 @@ class Tracker:
             return False
         # The very first start may be partial (heavily occluded sequences must start somehow);
         # a re-initialisation after a loss waits for a torso, since a partial restart that
-        # throws away the track's history was measured to do more harm than good.
+        # throws away the track's history was measured to do more harm than good (opt-in,
+        # reinit_partial_frames: a partial restart from the last tracked pose).
         def start(lm):
             p0 = initial_pose(
                 np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,

@@ -250,7 +250,7 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
             TrackerConfig(reinit_check_frames=bad)
 
 
-def test_reinit_partial_frames_restarts_from_the_lost_pose_without_a_left_right_pair(seq):
+def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pair(seq):
     """After a loss, a frame that shows neither both shoulders nor both hips (the far side
     hidden, as in a side view) cannot orient a new body: by default the re-initialisation
     waits; with ``reinit_partial_frames`` it starts from the last tracked pose, moved onto the
