@@ -848,15 +848,12 @@ class Tracker:
         # throws away the track's history was measured to do more harm than good (opt-in,
         # reinit_partial_frames: a partial restart from the last tracked pose).
         def start(lm):
+            points, has_depth = np.asarray(lm.points3d), np.asarray(lm.has_depth)
             p0 = initial_pose(
-                np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape,
-                allow_partial=not self._ever_initialized,
-            )  # fmt: skip
+                points, has_depth, self.shape, allow_partial=not self._ever_initialized
+            )
             if p0 is None and self._recently_tracked(self.config.reinit_partial_frames):
-                p0 = pose_moved_onto(
-                    *self._last_tracked_pose[1:], np.asarray(lm.points3d),
-                    np.asarray(lm.has_depth),
-                )  # fmt: skip
+                p0 = pose_moved_onto(*self._last_tracked_pose[1:], points, has_depth)
             return p0
 
         def flip_start() -> None:
@@ -924,6 +921,14 @@ class Tracker:
         self._lost_run = 0
         self._ever_initialized = True
         return True
+
+    def _tracked(self, frame: int, cands, person: int, kp, conf, est) -> None:
+        """What a frame judged tracked leaves for later ones (per frame and chunked alike):
+        the follower's reference, the keypoints the facing test compares with, and the pose a
+        partial re-initialisation starts from (``frame`` as counted by ``_frames_seen``)."""
+        self._follower.tracked(cands, person)
+        self._last_tracked_kp = (kp, conf)
+        self._last_tracked_pose = (frame, est.params, est.keypoints3d)
 
     def _recently_tracked(self, window: int) -> bool:
         """Whether the track, now lost, was last judged tracked at most ``window`` frames ago
@@ -1240,9 +1245,7 @@ class Tracker:
                 self._drop_track()
             return est, LOST
         self._lost_run = 0
-        self._follower.tracked(cands, p)
-        self._last_tracked_kp = (kp, conf)
-        self._last_tracked_pose = (self._frames_seen, est.params, est.keypoints3d)
+        self._tracked(self._frames_seen, cands, p, kp, conf, est)
         return est, TRACKED
 
     def run(
@@ -1558,9 +1561,7 @@ class Tracker:
                 est = jax.tree.map(lambda a: a[i, ...], res.estimate)
                 self._depth_fit = f.depth
                 if st == TRACKED:
-                    self._follower.tracked(f.cands, f.person_index)
-                    self._last_tracked_kp = (f.kp, f.conf)
-                    self._last_tracked_pose = (f.host[-1], est.params, est.keypoints3d)
+                    self._tracked(f.host[-1], f.cands, f.person_index, f.kp, f.conf, est)
             self._record_frame(
                 out, kept, n_keep, T, confidence, progress, f.t, est, st, f.exchanged,
                 f.person, f.depth, held=None if dropped else res.held[i],
