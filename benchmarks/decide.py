@@ -55,7 +55,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
 (``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
-``reinit_check_frames=N``: the check looks N frames after a loss),
+``reinit_check_frames=N``: the check looks N frames after a loss), ``trackedN``
+(``TrackerConfig(reinit_check_tracked=N)``: the fit checked against the last tracked pose),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
@@ -250,6 +251,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
     if variant.startswith("checkfit") and variant[8:].isdigit():
         frames = int(variant[8:])
         return {"config": pt.TrackerConfig(reinit_check_fit=True, reinit_check_frames=frames)}
+    if variant.startswith("tracked") and variant[7:].isdigit():
+        return {"config": pt.TrackerConfig(reinit_check_tracked=int(variant[7:]))}
     if variant == "bothways":
         return {"motion": pt.SmoothSettings(both_ways=True)}
     if variant == "crossfade":

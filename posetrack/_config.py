@@ -325,6 +325,17 @@ class TrackerConfig(eqx.Module):
     camera was measured to do more harm than good. A person walking across a side view under
     occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51 frames for one
     (benchmarks/README.md, "A restart from the lost pose"). Not in the paper."""
+    reinit_check_tracked: int = eqx.field(default=0, static=True)
+    """> 0: a re-initialisation at most this many frames after the last frame judged tracked,
+    on a frame that does not show both left/right pairs with depth (shoulders and hips), whose
+    initial fit faces more than 90 degrees away from that tracked pose, fits the landmarks
+    with every left/right pair exchanged too and keeps that fit if it faces the tracked pose's
+    way (host side; one more initial fit there). Unlike :attr:`reinit_check_fit` it compares
+    with the last *tracked* pose, not the pose at the loss (which drifted for
+    ``lost_patience`` frames), and needs no exchanged keypoints in the last tracked frame: in
+    side views a third of re-initialisations started turned round, all from frames with one
+    left/right pair, lifted wrongly (benchmarks/README.md, "A facing check against the last
+    tracked pose"). 0 (the default): off. Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -403,7 +414,12 @@ class TrackerConfig(eqx.Module):
                 f"TrackerConfig.reinit_check_fit must be True or False, got "
                 f"{self.reinit_check_fit!r}"
             )
-        for name in ("reinit_keep_facing", "reinit_check_frames", "reinit_partial_frames"):
+        for name in (
+            "reinit_keep_facing",
+            "reinit_check_frames",
+            "reinit_partial_frames",
+            "reinit_check_tracked",
+        ):
             n = getattr(self, name)
             if n is None and name == "reinit_check_frames":
                 continue

@@ -231,6 +231,13 @@ def _body_flipped(lm: Landmarks) -> Landmarks:
     return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
 
 
+def _faces_away(params: np.ndarray, reference: np.ndarray) -> bool:
+    """Whether pose ``params`` (43,) faces more than 90 degrees away from ``reference``: their
+    root left/right axes point apart."""
+    left = quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+    return bool(np.dot(left, quat_to_matrix(np.asarray(reference[3:7], np.float64))[:, 0]) < 0)
+
+
 class Tracker:
     """Track one person through an RGB-D sequence.
 
@@ -884,23 +891,17 @@ class Tracker:
         if not self._init_timed:  # the first call compiles: count it as compile time
             self.compile_s += time.perf_counter() - t0
             self._init_timed = True
-        check = self.config.reinit_check_frames  # None: reinit_keep_facing's window
-        if (
-            not flipped
-            and self.config.reinit_check_fit
-            and self._faces_away_from_drop(params, check)
-        ):
-            # The start faced the lost track's way but the fit turned round, following a
-            # whole-body swap the start did not show (TrackerConfig.reinit_check_fit): the
-            # exchanged landmarks are fitted too and kept if their fit keeps the facing.
+        turned = None if flipped else self._turned_fit(params, np.asarray(lm.has_depth))
+        if turned is not None:
+            # The fit turned round against the lost track (TrackerConfig.reinit_check_fit,
+            # reinit_check_tracked): the exchanged landmarks are fitted too and kept if their
+            # fit keeps the facing.
             lm_x = _body_flipped(lm)
             p0_x = start(lm_x)
             if p0_x is not None:
                 fit_x = fit(p0_x, lm_x)
                 params_x = np.asarray(fit_x[0].params)
-                if np.all(np.isfinite(params_x)) and not self._faces_away_from_drop(
-                    params_x, check
-                ):
+                if np.all(np.isfinite(params_x)) and not turned(params_x):
                     (res, kps, keys), params = fit_x, params_x
                     flip_start()
         if not np.all(np.isfinite(params)):
@@ -940,6 +941,22 @@ class Tracker:
             and self._frames_seen - self._last_tracked_pose[0] <= window
         )
 
+    def _turned_fit(self, params: np.ndarray, has_depth: np.ndarray):
+        """The facing test a re-initialisation's initial fit ``params`` failed, as a function
+        of a fit, or None where it passed or no test applies. ``reinit_check_fit``: the fit
+        faces away from the pose at the loss (within ``reinit_check_frames``; the start
+        faced its way). ``reinit_check_tracked``: the fit faces away from the last tracked
+        pose, within that many frames of it, on a frame without both left/right pairs."""
+        check = self.config.reinit_check_frames  # None: reinit_keep_facing's window
+        if self.config.reinit_check_fit and self._faces_away_from_drop(params, check):
+            return lambda p: self._faces_away_from_drop(p, check)
+        F = np.asarray(has_depth, bool)
+        if self._recently_tracked(self.config.reinit_check_tracked) and not F[[2, 5, 8, 11]].all():
+            tracked = np.asarray(self._last_tracked_pose[1], np.float64)
+            if _faces_away(params, tracked):
+                return lambda p: _faces_away(p, tracked)
+        return None
+
     def _faces_away_from_drop(self, params: np.ndarray, window: int | None = None) -> bool:
         """Whether ``params``, a re-initialisation at most ``window`` frames (default
         ``config.reinit_keep_facing``) after a track loss, faces more than 90 degrees away
@@ -950,9 +967,7 @@ class Tracker:
         frame, before, _ = self._dropped
         if self._frames_seen - frame > window:
             return False
-        before = np.asarray(resolve(before).best, np.float64)
-        left_now = quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
-        return bool(np.dot(left_now, quat_to_matrix(before[3:7])[:, 0]) < 0)
+        return _faces_away(params, np.asarray(resolve(before).best, np.float64))
 
     def _turned_since_drop(self, p0: np.ndarray, kp: np.ndarray, conf: np.ndarray) -> bool:
         """Whether a re-initialisation at most ``config.reinit_keep_facing`` frames after a

@@ -250,6 +250,44 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
             TrackerConfig(reinit_check_frames=bad)
 
 
+def test_reinit_check_tracked_keeps_the_last_tracked_facing_on_a_frame_with_one_pair(seq):
+    """A re-initialisation on a frame whose detections are the whole-body swap and that shows
+    one left/right pair only (a side view) turns the person round by default; with
+    ``reinit_check_tracked`` the fit, facing away from the last tracked pose, is replaced by
+    the exchanged landmarks' fit, within that many frames of it and on such frames only."""
+    flip = _tracker._BODY_FLIP
+    conf = np.array(seq.confidence[1], copy=True)[flip]
+    one_pair = conf.copy()
+    one_pair[11] = 0.0  # the left hip unseen: the shoulders are the only pair
+    kp = seq.keypoints2d[1][flip]
+
+    def left(params):
+        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+
+    def restart(frames: int, confidence, later: int = 0):
+        config = LVM.replace(reinit_keep_facing=0, reinit_check_tracked=frames)
+        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        tracker._drop_track()
+        tracker._frames_seen += later
+        assert tracker.initialize(seq.depth[1], kp, confidence)
+        return left(before) @ left(np.asarray(tracker.state.best)), tracker.reinit_flips
+
+    for frames, confidence, later, keeps in (
+        (0, one_pair, 0, False),  # off: turned round
+        (10, one_pair, 0, True),
+        (10, one_pair, 11, False),  # too long after the last tracked frame
+        (10, conf, 0, False),  # both pairs seen: the frame's own reading stands
+    ):
+        facing, flips = restart(frames, confidence, later)
+        assert (facing > 0.5) if keeps else (facing < -0.5), (frames, later, facing)
+        assert flips == int(keeps)
+    for bad in (-1, True, 2.0):
+        with pytest.raises(ValueError, match="reinit_check_tracked"):
+            TrackerConfig(reinit_check_tracked=bad)
+
+
 def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pair(seq):
     """After a loss, a frame that shows neither both shoulders nor both hips (the far side
     hidden, as in a side view) cannot orient a new body: by default the re-initialisation
