@@ -73,6 +73,7 @@ from ._smooth import (
 )
 from ._so3 import quat_to_matrix
 from ._step import LOST, NO_OBSERVATION, TRACKED, FrameEstimate, TrackState, tracker_step
+from ._visibility import TORSO_PAIRS
 
 _DTYPE = jnp.float32
 
@@ -950,8 +951,8 @@ class Tracker:
         check = self.config.reinit_check_frames  # None: reinit_keep_facing's window
         if self.config.reinit_check_fit and self._faces_away_from_drop(params, check):
             return lambda p: self._faces_away_from_drop(p, check)
-        F = np.asarray(has_depth, bool)
-        if self._recently_tracked(self.config.reinit_check_tracked) and not F[[2, 5, 8, 11]].all():
+        both_pairs = np.asarray(has_depth, bool)[np.ravel(TORSO_PAIRS)].all()
+        if self._recently_tracked(self.config.reinit_check_tracked) and not both_pairs:
             tracked = np.asarray(self._last_tracked_pose[1], np.float64)
             if _faces_away(params, tracked):
                 return lambda p: _faces_away(p, tracked)
@@ -2000,11 +2001,6 @@ def nearest_index(have: np.ndarray, n: int) -> np.ndarray:
     return np.where(np.abs(t - lo) <= np.abs(hi - t), lo, hi)
 
 
-#: The left/right keypoint pairs :func:`exchanged_since` compares: the shoulders and the hips,
-#: which a whole-body swap exchanges and a limb's swap does not.
-_TORSO_PAIRS = ((2, 5), (8, 11))
-
-
 def exchanged_since(
     kp_then: np.ndarray, conf_then: np.ndarray, kp_now: np.ndarray, conf_now: np.ndarray
 ) -> bool:
@@ -2013,7 +2009,8 @@ def exchanged_since(
     (confidence above 0.1), the image distances with the labels exchanged are the smaller.
     False where neither pair is seen in both."""
     a = b = 0.0
-    for r, s in _TORSO_PAIRS:  # right, left
+    # The shoulders and the hips: a whole-body swap exchanges them, a limb's swap does not.
+    for r, s in TORSO_PAIRS:  # right, left
         if min(conf_then[r], conf_then[s], conf_now[r], conf_now[s]) <= 0.1:
             continue
         a += np.linalg.norm(kp_now[r] - kp_then[r]) + np.linalg.norm(kp_now[s] - kp_then[s])

@@ -24,6 +24,11 @@ def seq():
 LVM = pt.TrackerConfig.recommended("lvm")  # test_paper_claim's LVM: programs shared
 
 
+def left(params):
+    """The body's left-right axis in the camera frame (the root rotation's first column)."""
+    return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
+
+
 @pytest.fixture(scope="module")
 def lvm_result(seq):
     return pt.track(seq.depth, seq.keypoints2d, seq.confidence, seq.intrinsics, LVM)
@@ -168,9 +173,6 @@ def test_a_quick_reinitialisation_keeps_the_lost_tracks_facing(seq):
     flip = _tracker._BODY_FLIP
     swapped = (seq.depth[1], seq.keypoints2d[1][flip], seq.confidence[1][flip])
 
-    def left(params):  # the body's left-right axis in the camera frame
-        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
-
     plain = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
     assert plain.initialize(seq.depth[1], seq.keypoints2d[1], seq.confidence[1])
     for keep in (15, 0):
@@ -208,9 +210,6 @@ def test_reinit_check_fit_keeps_the_facing_where_the_last_frame_was_already_swap
     against the pose at the loss and the exchanged landmarks' fit is kept instead."""
     flip = _tracker._BODY_FLIP
     swapped = (seq.depth[1], seq.keypoints2d[1][flip], seq.confidence[1][flip])
-
-    def left(params):
-        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
 
     def restart(later: int = 0, **changes):
         """Track frame 0, lose it (its detections already the whole-body swap), restart
@@ -261,9 +260,6 @@ def test_reinit_check_tracked_keeps_the_last_tracked_facing_on_a_frame_with_one_
     one_pair[11] = 0.0  # the left hip unseen: the shoulders are the only pair
     kp = seq.keypoints2d[1][flip]
 
-    def left(params):
-        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
-
     def restart(frames: int, confidence, later: int = 0):
         config = LVM.replace(reinit_keep_facing=0, reinit_check_tracked=frames)
         tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
@@ -298,9 +294,6 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
     conf = np.array(seq.confidence[1], copy=True)
     conf[far] = 0.0
     frame = (seq.depth[1], seq.keypoints2d[1], conf)
-
-    def left(params):
-        return _tracker.quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0]
 
     def restart(frames: int, later: int = 0, status: int = TRACKED):
         config = LVM.replace(reinit_partial_frames=frames)
