@@ -1,0 +1,149 @@
+"""Does Delta tell ``reinit_check_tracked``'s right flips from its wrong ones? (a diagnosis)
+
+``TrackerConfig.reinit_check_tracked`` replaces a side view's re-initialisation fit that
+faces away from the last tracked pose by the fit of the exchanged landmarks. It is right
+exactly as often as the last tracked pose faces the right way (benchmarks/README.md, "A
+facing check against the last tracked pose"). This script re-tracks the runs its offline
+screen changed (``results/decide_tracked25.json``: tuning seeds 2222-2251), and at every
+firing records both fits' Delta (Eq. (3), the tracker's own scoring of this frame's depth)
+and whether each faces as the truth does (the shoulders' and hips' left axis, seen from
+above), then prints how a margin rule "keep the exchanged fit unless its Delta is worse by
+more than m" would have sorted them. Tuning seeds only; the spy wraps private tracker
+functions and changes nothing it reads.
+
+    python benchmarks/flip_delta.py OUT.json [--part 0 --parts 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+from decide import split_start
+from parts import add_part_arguments, check_part, share
+
+import posetrack as pt
+import posetrack._tracker as tracker_module
+from posetrack import _body as body
+from posetrack._depthobs import tracker_observation
+from posetrack._step import score_hypotheses
+
+SCREEN = Path(__file__).parent / "results" / "decide_tracked25.json"
+MARGINS = (0.0, 0.005, 0.01, 0.015, 0.02, 0.05)
+
+
+def changed_runs() -> list[tuple[int, str, str, int, int]]:
+    """``(seed, motion, variety, occlusion, tracker seed)`` of the offline screen's changed
+    runs."""
+    recs = json.loads(SCREEN.read_text())["records"]
+    return [
+        (r["seed"], r["motion"],
+         "wide" if r["group"] == "walk_across" else ("wide", "standard")[r["seed"] % 2],
+         r["occ"], r["tseed"])
+        for r in recs if r["default"]["D"] != r["tracked25"]["D"]
+    ]  # fmt: skip
+
+
+def left_axis(k: np.ndarray) -> np.ndarray:
+    """The body's left direction in the floor plane from COCO-18 shoulders and hips."""
+    v = (k[5] - k[2]) + (k[11] - k[8])
+    v = np.array([v[0], 0.0, v[2]])
+    return v / (np.linalg.norm(v) + 1e-9)
+
+
+def spy(events: list) -> None:
+    """Wrap the tracker's re-initialisation so that each firing of the check appends the
+    frame, both fits' Delta and their keypoints to ``events``."""
+    init, turned_fit, fit = (
+        tracker_module.Tracker._initialize, tracker_module.Tracker._turned_fit,
+        tracker_module.initial_fit,
+    )  # fmt: skip
+    seen: dict = {}
+
+    def fit_spy(*a, **k):
+        out = fit(*a, **k)
+        seen.setdefault("fits", []).append(np.asarray(out[0].params, np.float64))
+        return out
+
+    def turned_spy(self, params, has_depth):
+        test = turned_fit(self, params, has_depth)
+        seen["fired"] = seen.get("fired", False) or test is not None
+        return test
+
+    def init_spy(self, depth_m, kp, conf):
+        seen.clear()
+        ok = init(self, depth_m, kp, conf)
+        if seen.get("fired") and len(seen.get("fits", ())) == 2:
+            fits = np.stack(seen["fits"])
+            z_d, z_fg, known, small = tracker_observation(
+                self.config, jnp.asarray(depth_m, jnp.float32), self.intrinsics, self._floor,
+                jnp.asarray(fits[0, :3], jnp.float32),
+            )  # fmt: skip
+            delta = score_hypotheses(
+                self.config, self.shape, jnp.asarray(fits, jnp.float32), z_d, z_fg, small, known
+            )
+            kps = [np.asarray(body.keypoints(self.shape, jnp.asarray(p, jnp.float32)))
+                   for p in fits]  # fmt: skip
+            events.append((self._frames_seen - 1, [float(d) for d in delta], kps))
+        return ok
+
+    tracker_module.initial_fit = fit_spy
+    tracker_module.Tracker._turned_fit = turned_spy
+    tracker_module.Tracker._initialize = init_spy
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out", help="JSON: one row per firing (this process's runs)")
+    add_part_arguments(ap)
+    a = ap.parse_args()
+    check_part(ap, a)
+    events: list = []
+    spy(events)
+    rows = []
+    for seed, motion, variety, occ, ts in share(changed_runs(), a):
+        recording, start = split_start(motion)
+        seq = pt.synth.generate(
+            seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
+            height=240, with_rgb=False, variety=variety, motion_start=start,
+        )  # fmt: skip
+        events.clear()
+        config = pt.TrackerConfig(reinit_check_tracked=25)
+        pt.Tracker(seq.intrinsics, config, mode="offline", seed=ts).run(
+            seq.depth, seq.keypoints2d, seq.confidence
+        )
+        for frame, delta, kps in events:
+            truth = left_axis(np.asarray(seq.joints3d[min(frame, len(seq.joints3d) - 1)]))
+            plain, exchanged = (float(left_axis(k) @ truth) for k in kps)
+            kind = ("right" if exchanged > 0 >= plain else
+                    "wrong" if plain > 0 >= exchanged else "neither")  # fmt: skip
+            rows.append({
+                "seed": seed, "motion": motion, "occ": occ, "tseed": ts, "frame": frame,
+                "delta_plain": delta[0], "delta_exchanged": delta[1],
+                "truth_dot_plain": plain, "truth_dot_exchanged": exchanged, "flip": kind,
+            })  # fmt: skip
+            print(json.dumps(rows[-1]), flush=True)
+    Path(a.out).write_text(json.dumps(rows, indent=1) + "\n")
+    print(table(rows))
+    return 0
+
+
+def table(rows: list[dict]) -> str:
+    """How the margin rule sorts the firings: right flips kept, wrong ones refused."""
+    diff = {k: [r["delta_exchanged"] - r["delta_plain"] for r in rows if r["flip"] == k]
+            for k in ("right", "wrong", "neither")}  # fmt: skip
+    lines = [f"firings: {', '.join(f'{k} {len(v)}' for k, v in diff.items())}",
+             "margin m   right flips kept   wrong flips refused"]  # fmt: skip
+    for m in MARGINS:
+        kept = sum(d <= m for d in diff["right"])
+        refused = sum(d > m for d in diff["wrong"])
+        lines.append(f"{m:8.3f}   {kept:4d} / {len(diff['right']):<4d}       "
+                     f"{refused:4d} / {len(diff['wrong'])}")  # fmt: skip
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
