@@ -339,9 +339,10 @@ class TrackerConfig(eqx.Module):
     tracked pose"). 25 (the default since 2026-12-06) passed its offline and online screens
     (D -0.60 / -2.47 mm on the frames both answer, swapped-limb frames -4 / -14 % over 60
     fresh tuning runs x 4 tracker seeds per mode) and both report stages (96 runs x 2 tracker
-    seeds per mode: D -0.15 / -0.17 mm, no cell worse; it fired on 2 of 192 trackings offline
-    and 1 online, each better). It is right as often as the last tracked pose faces right: a
-    track that turned round while judged tracked is kept turned. 0: off. Not in the paper."""
+    seeds per mode: D -0.15 / -0.17 mm, no cell worse; it changed 2 of 192 trackings offline,
+    -28.7 and +0.2 mm, and 1 online, -38.7). It is right as often as the last tracked pose
+    faces right: a track that turned round while judged tracked is kept turned. 0: off. Not in
+    the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
