@@ -56,7 +56,8 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
 ``reinit_check_frames=N``: the check looks N frames after a loss), ``trackedN``
-(``TrackerConfig(reinit_check_tracked=N)``: the fit checked against the last tracked pose),
+(``TrackerConfig(reinit_check_tracked=N)``: the fit checked against the last tracked pose;
+the default is 25 since 2026-12-06, so ``tracked0`` is the old restart),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
