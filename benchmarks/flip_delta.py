@@ -22,7 +22,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-from decide import split_start
+from decide import cmu_late, split_start
 from parts import add_part_arguments, check_part, share
 
 import posetrack as pt
@@ -41,14 +41,15 @@ def changed_runs() -> list[tuple[int, str, str, int, int]]:
     recs = json.loads(SCREEN.read_text())["records"]
     return [
         (r["seed"], r["motion"],
-         "wide" if r["group"] == "walk_across" else ("wide", "standard")[r["seed"] % 2],
-         r["occ"], r["tseed"])
+         "wide" if r["group"] == "walk_across" else cmu_late(r["seed"])[3], r["occ"], r["tseed"])
         for r in recs if r["default"]["D"] != r["tracked25"]["D"]
     ]  # fmt: skip
 
 
 def left_axis(k: np.ndarray) -> np.ndarray:
-    """The body's left direction in the floor plane from COCO-18 shoulders and hips."""
+    """The body's left direction in the floor plane from COCO-18 shoulders and hips (one
+    frame; ``facing.py``'s ``facing_error_deg`` reads the shoulders alone, which a side view's
+    far shoulder makes noisier)."""
     v = (k[5] - k[2]) + (k[11] - k[8])
     v = np.array([v[0], 0.0, v[2]])
     return v / (np.linalg.norm(v) + 1e-9)
