@@ -57,7 +57,9 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
 ``reinit_check_frames=N``: the check looks N frames after a loss), ``trackedN``
 (``TrackerConfig(reinit_check_tracked=N)``: the fit checked against the last tracked pose;
-the default is 25 since 2026-12-06, so ``tracked0`` is the old restart),
+the default is 25 since 2026-12-06, so ``tracked0`` is the old restart), ``cdeltaN``
+(``TrackerConfig(reinit_check_delta=N/1000)``: the check's exchange kept only if its Delta is
+at most the plain fit's + N/1000),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
 ``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
@@ -254,6 +256,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(reinit_check_fit=True, reinit_check_frames=frames)}
     if variant.startswith("tracked") and variant[7:].isdigit():
         return {"config": pt.TrackerConfig(reinit_check_tracked=int(variant[7:]))}
+    if variant.startswith("cdelta") and variant[6:].isdigit():
+        return {"config": pt.TrackerConfig(reinit_check_delta=int(variant[6:]) / 1000)}
     if variant == "bothways":
         return {"motion": pt.SmoothSettings(both_ways=True)}
     if variant == "crossfade":
@@ -328,7 +332,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
-        "'checkfitN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
+        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', "
+        "'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
 

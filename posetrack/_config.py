@@ -343,6 +343,16 @@ class TrackerConfig(eqx.Module):
     -28.7 and +0.2 mm, and 1 online, -38.7). It is right as often as the last tracked pose
     faces right: a track that turned round while judged tracked is kept turned. 0: off. Not in
     the paper."""
+    reinit_check_delta: float | None = eqx.field(default=None, static=True)
+    """A margin on Delta (Eq. 3) for the facing checks' exchange (:attr:`reinit_check_tracked`,
+    :attr:`reinit_check_fit`): where set, the exchanged landmarks' fit replaces the plain one
+    only if its Delta is at most the plain fit's plus this margin (both fits rendered against
+    the frame's depth; host side, one small scoring call where a check fires; its first use
+    compiles a small program). ``None`` (the default): facing alone decides. Delta sees the
+    depth that 2D-only landmarks do not: on the screen's side views, 15 of 49 firings of the
+    tracked check turned a right facing wrong, and a margin of 0.02 refused 10 of those while
+    keeping 31 of 32 right flips (benchmarks/README.md, "Delta as a tie-breaker for
+    reinit_check_tracked's flips"; read off the same runs). Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
@@ -432,6 +442,16 @@ class TrackerConfig(eqx.Module):
                 continue
             if isinstance(n, bool) or not isinstance(n, int) or n < 0:
                 raise ValueError(f"TrackerConfig.{name} must be an int >= 0 (frames), got {n!r}")
+        margin = self.reinit_check_delta
+        if margin is not None and (
+            isinstance(margin, bool)
+            or not isinstance(margin, (int, float))
+            or not math.isfinite(margin)
+        ):
+            raise ValueError(
+                f"TrackerConfig.reinit_check_delta must be None or a finite number (a margin on "
+                f"Delta), got {margin!r}"
+            )
         if self.score_width < 8 or self.score_height < 8:
             raise ValueError(
                 f"TrackerConfig: score size must be at least 8x8, got "

@@ -39,7 +39,7 @@ from ._bothways import Reindexed, fuse_smoothed, fuse_weights
 from ._camera import Intrinsics, project_host
 from ._chunk import status_limits, step_chunk
 from ._config import TrackerConfig
-from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks
+from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks, tracker_observation
 from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
 from ._geometry import surface_offsets
@@ -72,7 +72,15 @@ from ._smooth import (
     smooth_window_program,
 )
 from ._so3 import quat_to_matrix
-from ._step import LOST, NO_OBSERVATION, TRACKED, FrameEstimate, TrackState, tracker_step
+from ._step import (
+    LOST,
+    NO_OBSERVATION,
+    TRACKED,
+    FrameEstimate,
+    TrackState,
+    score_hypotheses,
+    tracker_step,
+)
 from ._visibility import TORSO_PAIRS
 
 _DTYPE = jnp.float32
@@ -147,6 +155,15 @@ def initial_fit(settings: FitSettings, shape, intrinsics, params0, lm: Landmarks
     )
     keys = jax.random.split(key)
     return res, body.keypoints(shape, res.params), (keys[0], keys[1])
+
+
+@program("score_fits", rare=True)
+def score_fits(config: TrackerConfig, shape, intrinsics, floor, depth, params) -> Array:
+    """Delta (Eq. 3) of a few whole-body fits ``params`` (fits, 43) against one frame's depth,
+    observed around the first fit's root, compiled: how ``reinit_check_delta`` weighs a
+    facing check's exchanged fit against the plain one."""
+    z_d, z_fg, known, small = tracker_observation(config, depth, intrinsics, floor, params[0, :3])
+    return score_hypotheses(config, shape, params, z_d, z_fg, small, known)
 
 
 def _keep_best_observed(kept: dict, stretch: int, n3d: int, entry) -> None:
@@ -452,6 +469,10 @@ class Tracker:
         :meth:`run`) whose re-initialisation exchanged every left/right pair to keep the lost
         track's facing (``TrackerConfig.reinit_keep_facing``): places where the tracker
         overrode the detector's labels."""
+        self.reinit_check_deltas: tuple[tuple[int, float, float], ...] = ()
+        """With ``TrackerConfig.reinit_check_delta``: (frame, Delta of the plain fit, Delta of
+        the exchanged fit) of every re-initialisation whose facing check weighed the two (since
+        the last :meth:`run`; a frame the offline tracker tracks again appears again)."""
         self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
         self.compile_s = 0.0
         self._init_timed = False
@@ -902,7 +923,11 @@ class Tracker:
             if p0_x is not None:
                 fit_x = fit(p0_x, lm_x)
                 params_x = np.asarray(fit_x[0].params)
-                if np.all(np.isfinite(params_x)) and not turned(params_x):
+                if (
+                    np.all(np.isfinite(params_x))
+                    and not turned(params_x)
+                    and self._exchange_not_worse(depth_m, params, params_x)
+                ):
                     (res, kps, keys), params = fit_x, params_x
                     flip_start()
         if not np.all(np.isfinite(params)):
@@ -957,6 +982,23 @@ class Tracker:
             if _faces_away(params, tracked):
                 return lambda p: _faces_away(p, tracked)
         return None
+
+    def _exchange_not_worse(self, depth_m, plain: np.ndarray, exchanged: np.ndarray) -> bool:
+        """Whether a facing check's exchanged fit may replace the plain one: always, unless
+        ``config.reinit_check_delta`` is set; then only if its Delta (Eq. 3, against this
+        frame's depth, the floor as the plain fit would find it) is at most the plain fit's
+        plus that margin."""
+        margin = self.config.reinit_check_delta
+        if margin is None:
+            return True
+        floor = device_f32(self._fit_floor(depth_m, plain))
+        fits = _host_f32(np.stack([plain, exchanged]))
+        delta = np.asarray(
+            score_fits(self.config, self.shape, self.intrinsics, floor, depth_m, fits)
+        )
+        frame = max(self._frames_seen - 1, 0)
+        self.reinit_check_deltas += ((frame, float(delta[0]), float(delta[1])),)
+        return bool(delta[1] <= delta[0] + margin)
 
     def _faces_away_from_drop(self, params: np.ndarray, window: int | None = None) -> bool:
         """Whether ``params``, a re-initialisation at most ``window`` frames (default
@@ -1330,7 +1372,7 @@ class Tracker:
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
         self.side_spans, self.side_span_groups, self._judged_rows = [], [], None
-        self.reinit_flip_frames = ()
+        self.reinit_flip_frames, self.reinit_check_deltas = (), ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)

@@ -284,6 +284,46 @@ def test_reinit_check_tracked_keeps_the_last_tracked_facing_on_a_frame_with_one_
             TrackerConfig(reinit_check_tracked=bad)
 
 
+def test_reinit_check_delta_keeps_the_exchange_only_within_its_margin_on_delta(seq):
+    """With ``reinit_check_delta`` the tracked check's exchanged fit replaces the plain one
+    only if its Delta is at most the plain fit's plus the margin: the Deltas it weighs are
+    recorded, the exchanged one is the kept pose's Delta against the frame, and a margin just
+    under their gap refuses the exchange (the person is left turned round)."""
+    flip = _tracker._BODY_FLIP
+    conf = np.array(seq.confidence[1], copy=True)[flip]
+    conf[11] = 0.0  # the shoulders are the only left/right pair
+    kp = seq.keypoints2d[1][flip]
+
+    def restart(margin: float):
+        config = LVM.replace(
+            reinit_keep_facing=0, reinit_check_tracked=10, reinit_check_delta=margin
+        )
+        tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
+        assert tracker.update(seq.depth[0], seq.keypoints2d[0], seq.confidence[0])[1] == TRACKED
+        before = np.asarray(tracker.state.best)
+        tracker._drop_track()
+        assert tracker.initialize(seq.depth[1], kp, conf)
+        return tracker, left(before) @ left(np.asarray(tracker.state.best))
+
+    tracker, facing = restart(1e3)  # any Delta: as without a margin
+    assert facing > 0.5 and tracker.reinit_flips == 1
+    ((frame, plain, exchanged),) = tracker.reinit_check_deltas
+    assert frame == 0 and np.isfinite(plain) and np.isfinite(exchanged)
+    best = np.asarray(tracker.state.best, np.float32)[None]
+    depth = _tracker.check_depth(tracker.intrinsics, seq.depth[1], tracker.depth_scale, "test")
+    again = _tracker.score_fits(
+        tracker.config, tracker.shape, tracker.intrinsics, tracker.floor, depth, best
+    )
+    np.testing.assert_allclose(float(again[0]), exchanged, rtol=1e-4, atol=1e-6)
+
+    tracker, facing = restart(exchanged - plain - 1e-4)
+    assert facing < -0.5 and tracker.reinit_flips == 0
+    assert len(tracker.reinit_check_deltas) == 1
+    for bad in (float("nan"), float("inf"), True, "0.02"):
+        with pytest.raises(ValueError, match="reinit_check_delta"):
+            TrackerConfig(reinit_check_delta=bad)
+
+
 def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pair(seq):
     """After a loss, a frame that shows neither both shoulders nor both hips (the far side
     hidden, as in a side view) cannot orient a new body: by default the re-initialisation
