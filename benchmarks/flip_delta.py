@@ -12,6 +12,10 @@ more than m" would have sorted them. Tuning seeds only; the spy wraps private tr
 functions and changes nothing it reads.
 
     python benchmarks/flip_delta.py OUT.json [--part 0 --parts 2]
+        [--screen results/decide_tracked25.json --variant tracked25]
+
+``--screen``/``--variant`` name another offline screen (e.g. a ``reinit_check_delta`` one's
+JSONL) whose changed runs to re-track; the re-tracking is always the default tracker's.
 """
 
 from __future__ import annotations
@@ -35,14 +39,19 @@ SCREEN = Path(__file__).parent / "results" / "decide_tracked25.json"
 MARGINS = (0.0, 0.005, 0.01, 0.015, 0.02, 0.05)
 
 
-def changed_runs() -> list[tuple[int, str, str, int, int]]:
-    """``(seed, motion, variety, occlusion, tracker seed)`` of the offline screen's changed
-    runs."""
-    recs = json.loads(SCREEN.read_text())["records"]
+def changed_runs(
+    screen: Path = SCREEN, variant: str = "tracked25"
+) -> list[tuple[int, str, str, int, int]]:
+    """``(seed, motion, variety, occlusion, tracker seed)`` of the runs an offline screen
+    (``decide.py``'s JSON with ``"records"``, or its JSONL, one record a line) changed:
+    ``variant``'s D differs from the default's."""
+    text = screen.read_text()
+    recs = (json.loads(text)["records"] if screen.suffix == ".json"
+            else [json.loads(line) for line in text.splitlines() if line.strip()])  # fmt: skip
     return [
         (r["seed"], r["motion"],
          "wide" if r["group"] == "walk_across" else cmu_late(r["seed"])[3], r["occ"], r["tseed"])
-        for r in recs if r["default"]["D"] != r["tracked25"]["D"]
+        for r in recs if r["default"]["D"] != r[variant]["D"]
     ]  # fmt: skip
 
 
@@ -99,13 +108,17 @@ def spy(events: list) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", help="JSON: one row per firing (this process's runs)")
+    ap.add_argument("--screen", type=Path, default=SCREEN,
+                    help="the offline screen whose changed runs to re-track (.json or .jsonl)")
+    ap.add_argument("--variant", default="tracked25",
+                    help="the screen's variant: a run changed where its D differs")  # fmt: skip
     add_part_arguments(ap)
     a = ap.parse_args()
     check_part(ap, a)
     events: list = []
     spy(events)
     rows = []
-    for seed, motion, variety, occ, ts in share(changed_runs(), a):
+    for seed, motion, variety, occ, ts in share(changed_runs(a.screen, a.variant), a):
         recording, start = split_start(motion)
         seq = pt.synth.generate(
             seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,

@@ -351,8 +351,11 @@ class TrackerConfig(eqx.Module):
     compiles a small program). ``None`` (the default): facing alone decides. Delta sees the
     depth that 2D-only landmarks do not: on the screen's side views, 15 of 49 firings of the
     tracked check turned a right facing wrong, and a margin of 0.02 refused 10 of those while
-    keeping 31 of 32 right flips (benchmarks/README.md, "Delta as a tie-breaker for
-    reinit_check_tracked's flips"; read off the same runs). Not in the paper."""
+    keeping 31 of 32 right flips, read off the same runs. On fresh tuning runs it did not
+    hold: 0.02 refused 8 of 10 right flips there (their exchanged fits scored worse by up to
+    0.040), and its offline screen failed (2026-12-06: 4 of 60 runs changed, D +0.18 mm, one
+    run +10.2; benchmarks/README.md, "Delta's margin on the facing check, screened"), so it
+    stays off. Not in the paper."""
     min_landmarks: int = eqx.field(default=4, static=True)
     """Fewer 3D landmarks than this: the frame is 'no_observation' (pose held)."""
     use_floor: bool = eqx.field(default=True, static=True)
