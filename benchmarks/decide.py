@@ -36,7 +36,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
 ``farboundS`` (the same with ``bound_turn_sin=S``),
 ``alllm-norefit`` (that and no
-consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``oaccX``
+consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN`` (that
+with ``reinit_check_tracked=N``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
 (``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
@@ -310,6 +311,9 @@ def settings(variant: str, mode: str = "offline") -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "lvm":
         return {"config": pt.TrackerConfig.recommended("lvm")}
+    if variant.startswith("lvm-tracked") and variant[11:].isdigit():
+        lvm = pt.TrackerConfig.recommended("lvm")
+        return {"config": lvm.replace(reinit_check_tracked=int(variant[11:]))}
     if variant == "alllm-norefit":
         return {"config": pt.TrackerConfig(all_landmarks_hypothesis=True, consensus_refit=False)}
     if variant == "alllm":
@@ -329,7 +333,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'oaccX', 'orobustX', 'anchorX', 'amargX', 'oframesN', 'omodelX', "
+        "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'anchorX', 'amargX', "
+        "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
         "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', "

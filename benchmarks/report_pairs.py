@@ -78,7 +78,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", help="JSON lines, appended to")
     ap.add_argument("--set", choices=tuple(SETS), required=True)
-    ap.add_argument("--mode", choices=("offline", "online"), required=True)
+    ap.add_argument("--mode", choices=("offline", "online", "per-frame"), required=True)
     ap.add_argument("--variants", default="", help="decide.py's variant names to track")
     ap.add_argument("--tracker-seeds", default="1")
     ap.add_argument(
