@@ -32,8 +32,6 @@ from parts import add_part_arguments, check_part, share
 import posetrack as pt
 import posetrack._tracker as tracker_module
 from posetrack import _body as body
-from posetrack._depthobs import tracker_observation
-from posetrack._step import score_hypotheses
 
 SCREEN = Path(__file__).parent / "results" / "decide_tracked25.json"
 MARGINS = (0.0, 0.005, 0.01, 0.015, 0.02, 0.05)
@@ -88,13 +86,10 @@ def spy(events: list) -> None:
         ok = init(self, depth_m, kp, conf)
         if seen.get("fired") and len(seen.get("fits", ())) == 2:
             fits = np.stack(seen["fits"])
-            z_d, z_fg, known, small = tracker_observation(
-                self.config, jnp.asarray(depth_m, jnp.float32), self.intrinsics, self._floor,
-                jnp.asarray(fits[0, :3], jnp.float32),
+            delta = tracker_module.score_fits(
+                self.config, self.shape, self.intrinsics, self._floor,
+                np.asarray(depth_m, np.float32), fits.astype(np.float32),
             )  # fmt: skip
-            delta = score_hypotheses(
-                self.config, self.shape, jnp.asarray(fits, jnp.float32), z_d, z_fg, small, known
-            )
             kps = [np.asarray(body.keypoints(self.shape, jnp.asarray(p, jnp.float32)))
                    for p in fits]  # fmt: skip
             events.append((self._frames_seen - 1, [float(d) for d in delta], kps))
