@@ -54,12 +54,13 @@ def changed_runs(
 
 
 def left_axis(k: np.ndarray) -> np.ndarray:
-    """The body's left direction in the floor plane from COCO-18 shoulders and hips (one
-    frame; ``facing.py``'s ``facing_error_deg`` reads the shoulders alone, which a side view's
-    far shoulder makes noisier)."""
-    v = (k[5] - k[2]) + (k[11] - k[8])
-    v = np.array([v[0], 0.0, v[2]])
-    return v / (np.linalg.norm(v) + 1e-9)
+    """The body's left direction in the camera's x-z plane from COCO-18 shoulders and hips
+    (``(..., 18, 3)`` keypoints -> ``(..., 3)`` unit vectors, y = 0; ``facing.py``'s
+    ``facing_error_deg`` reads the shoulders alone, which a side view's far shoulder makes
+    noisier)."""
+    k = np.asarray(k, np.float64)
+    v = ((k[..., 5, :] - k[..., 2, :]) + (k[..., 11, :] - k[..., 8, :])) * np.array([1.0, 0, 1])
+    return v / (np.linalg.norm(v, axis=-1, keepdims=True) + 1e-9)
 
 
 def spy(events: list) -> None:

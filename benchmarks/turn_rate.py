@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 from decide import clips, split_start
+from flip_delta import left_axis
 from parts import add_part_arguments, check_part, share
 from seeds import parse_seeds
 
@@ -46,10 +47,8 @@ THRESHOLDS = (45, 60, 90, 120)
 
 def facing_deg(k: np.ndarray) -> np.ndarray:
     """(T,) the body's facing about the camera's vertical, degrees: the angle in the x-z plane
-    of the left direction from COCO-18 shoulders and hips ((T, 18, 3) keypoints; NaN where
-    any is NaN)."""
-    k = np.asarray(k, np.float64)
-    v = (k[:, 5] - k[:, 2]) + (k[:, 11] - k[:, 8])
+    of :func:`flip_delta.left_axis` ((T, 18, 3) keypoints; NaN where any is NaN)."""
+    v = left_axis(k)
     return np.degrees(np.arctan2(v[:, 2], v[:, 0]))
 
 
