@@ -39,9 +39,7 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN`` (that
 with ``reinit_check_tracked=N``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
-(``SmoothSettings(online_robust=X)``, metres), ``sopW``
-(``TrackerConfig(surface_offset_posed=W)``: the lifting's offsets moved toward the previous
-pose's own by W), ``anchorX``
+(``SmoothSettings(online_robust=X)``, metres), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
@@ -201,7 +199,6 @@ _NUMBERED = {
     "band": ("config", pt.TrackerConfig, "lift_band"),
     "agree": ("config", pt.TrackerConfig, "lost_agreement"),
     "follow": ("follow", pt.FollowSettings, "depth_band"),
-    "sop": ("config", pt.TrackerConfig, "surface_offset_posed"),
 }
 
 
@@ -339,7 +336,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'anchorX', 'amargX', "
         "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'agreeX', 'followX', 'sopW', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
+        "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
         "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', "
         "'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"

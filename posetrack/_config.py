@@ -41,7 +41,6 @@ PAPER_BEST: dict[str, dict] = {
 #: paper's method alone (see README "Beyond the paper").
 BEYOND_THE_PAPER: dict[str, bool | int | float] = {
     "surface_offset": False,
-    "surface_offset_posed": 0.0,
     "invalid_is_unknown": False,
     "use_floor": False,
     "temporal_2d": False,
@@ -189,13 +188,6 @@ class TrackerConfig(eqx.Module):
     surface_offset: bool = eqx.field(default=True, static=True)
     """Push lifted landmarks back by the local body radius (surface -> joint centre). Not in
     the paper; see README "Beyond the paper"."""
-    surface_offset_posed: float = eqx.field(default=0.0, static=True)
-    """With ``surface_offset``, each frame's body landmarks are pushed back by a blend of the
-    radius-based offset and the previous output pose's own: the distance along the joint's
-    viewing ray from where it enters the posed capsules to the joint
-    (:func:`~posetrack._geometry.posed_surface_offsets`), this weight on the posed one (in
-    [0, 1]; the first frame of a track keeps the radius-based offset). 0 (the default): the
-    radius-based offsets alone. Not in the paper."""
     temporal_2d: bool = eqx.field(default=True, static=True)
     """A temporal weight for 2D-only landmarks (detected, no valid depth) from their distance
     in pixels to the hypothesis' reprojected previous keypoint, converted to metres at its
@@ -453,12 +445,6 @@ class TrackerConfig(eqx.Module):
                 continue
             if isinstance(n, bool) or not isinstance(n, int) or n < 0:
                 raise ValueError(f"TrackerConfig.{name} must be an int >= 0 (frames), got {n!r}")
-        w = self.surface_offset_posed
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0.0 <= w <= 1.0:
-            raise ValueError(
-                f"TrackerConfig.surface_offset_posed must be a number in [0, 1] (a weight), got "
-                f"{w!r}"
-            )
         margin = self.reinit_check_delta
         if margin is not None and (
             isinstance(margin, bool)

@@ -443,21 +443,18 @@ def tracker_landmarks(
     depth: Float[Array, "H W"],
     keypoints2d: Float[Array, "kpt 2"],
     confidence: Float[Array, " kpt"],
-    offsets: Float[Array, " kpt"] | None = None,
 ) -> Landmarks:
     """:func:`~posetrack.lift_keypoints` with the tracker's settings: its lifting window and
     confidence threshold, and with ``config.surface_offset`` each landmark pushed back by
     :func:`~posetrack._geometry.surface_offsets` (surface -> joint centre), each window
     reading only depths within ``config.lift_band`` behind the torso
-    (:func:`~posetrack.body_depth_limit`). ``offsets`` (metres, per keypoint) replaces
-    :func:`landmark_offsets` where given."""
-    offsets = landmark_offsets(config, shape) if offsets is None else offsets
+    (:func:`~posetrack.body_depth_limit`)."""
 
     def lift(**max_depth):  # lift_keypoints' own max_depth unless given
         return lift_keypoints(
             depth, keypoints2d, confidence, intrinsics,
             window=config.lift_window, confidence_threshold=config.confidence_threshold,
-            depth_offset=offsets, rule=config.lift_rule, **max_depth,
+            depth_offset=landmark_offsets(config, shape), rule=config.lift_rule, **max_depth,
         )  # fmt: skip
 
     # Lifted twice: the torso's landmarks place the body, and windows then ignore the depths

@@ -2,9 +2,8 @@
 
 Three per-keypoint quantities used by the lifting and the landmark selection, all in metres:
 how far each joint centre lies behind the body surface a depth sensor sees
-(:func:`surface_offsets`, from the part radii; :func:`posed_surface_offsets`, read off the
-posed model along each joint's viewing ray), and for the geometric test of the MHT's W^g,
-each keypoint's partner on one rigid part (:data:`GEOMETRY_PARTNER`), the rest distance to it
+(:func:`surface_offsets`), and for the geometric test of the MHT's W^g, each keypoint's
+partner on one rigid part (:data:`GEOMETRY_PARTNER`), the rest distance to it
 (:func:`partner_rest_lengths`) and the radius of the part between them (:func:`part_radii`).
 """
 
@@ -14,19 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ._body import (
-    BODY_JOINTS,
-    KEYPOINT_PARENTS,
-    BodyShape,
-    capsules,
-    facing_camera_params,
-    keypoints,
-)
-from ._render import Capsules, capsule_fields, capsule_params
-
-#: A posed offset larger than this (metres) is not read as the joint's own part in front of it
-#: (another part far in front: an arm across the body, the far side in a side view).
-_MAX_POSED_OFFSET = 0.25
+from ._body import KEYPOINT_PARENTS, BodyShape, facing_camera_params, keypoints
 
 #: Partner keypoint of each keypoint for the geometric test: its skeleton parent; the neck, whose
 #: parent is the hips' midpoint, is paired with the right hip (the neck-hip distance is rigid in
@@ -49,35 +36,6 @@ def surface_offsets(shape: BodyShape) -> Float[Array, " kpt"]:
     hip, kn, an = 1.35 * shape.thigh_radius, shape.shin_radius, 0.8 * shape.shin_radius
     neck = 0.6 * shape.torso_radius
     return jnp.stack([z, neck, sh, el, wr, sh, el, wr, hip, kn, an, hip, kn, an, z, z, z, z])
-
-
-def posed_surface_offsets(
-    shape: BodyShape, params: Float[Array, 43], weight: float
-) -> Float[Array, " kpt"]:
-    """:func:`surface_offsets` moved toward the posed model's own: for each body keypoint, the
-    distance along its viewing ray (from the camera origin through the joint centre of the pose
-    ``params``) from where the ray enters the model's capsules to the joint,
-
-        (1 - weight) * surface_offsets(shape) + weight * posed,
-
-    so the offset follows the pose and the shape (an elbow bent toward the camera sits behind
-    its forearm, a hip in a side view behind the pelvis' width, not its depth). Where the ray
-    misses the model or ``posed`` is outside ``[0, 0.25]`` m (another part far in front),
-    and for the face keypoints (on the surface), :func:`surface_offsets` is kept.
-    """
-    base = surface_offsets(shape)
-    kp = keypoints(shape, params)
-    a, b, radius = capsules(shape, params)
-    p = {k: v[:, None] for k, v in capsule_params(Capsules(a, b, radius)).items()}
-    z = jnp.maximum(kp[:, 2], 1e-3)
-    x, y = kp[:, 0] / z, kp[:, 1] / z
-    delta, entry = capsule_fields(x[None], y[None], p)  # (capsule, kpt)
-    surface = jnp.min(jnp.where(delta < 0.0, entry, jnp.inf), axis=0)
-    posed = (kp[:, 2] - surface) * jnp.sqrt(x * x + y * y + 1.0)
-    body_kpt = np.zeros(kp.shape[0], bool)
-    body_kpt[list(BODY_JOINTS)] = True  # the face keypoints lie on the surface
-    ok = body_kpt & jnp.isfinite(posed) & (posed >= 0.0) & (posed <= _MAX_POSED_OFFSET)
-    return jnp.where(ok, (1.0 - weight) * base + weight * jnp.where(ok, posed, 0.0), base)
 
 
 def partner_rest_lengths(shape: BodyShape) -> Float[Array, " kpt"]:

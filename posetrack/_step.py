@@ -25,7 +25,6 @@ from ._camera import Intrinsics
 from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
-from ._geometry import posed_surface_offsets
 from ._limbs import limb_hypotheses
 from ._observe import Landmarks, as_bounds, confident_depth, without_depth
 from ._refine import refine_pose
@@ -226,11 +225,7 @@ def tracker_step(
         The new state and this frame's :class:`FrameEstimate`.
     """
     key, key_next = jax.random.split(state.key)
-    offsets = None  # the radius-based offsets (landmark_offsets)
-    if config.surface_offset and config.surface_offset_posed > 0:
-        # (off by default) the offsets moved toward the previous output pose's own surface
-        offsets = posed_surface_offsets(shape, state.best, config.surface_offset_posed)
-    lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence, offsets)
+    lm = tracker_landmarks(config, shape, intrinsics, depth, keypoints2d, confidence)
     # With TrackerConfig.depth_confidence > 0 (off by default), keypoints detected far less
     # confidently than the rest of the body (inferred behind an occluder: their depth is the
     # occluder's) are fitted in 2D only; depth_confidence_far (off by default) does the same
