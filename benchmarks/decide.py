@@ -164,6 +164,18 @@ def split_start(motion: str) -> tuple[str, float]:
     return name, float(start) if at else 0.0
 
 
+def generate_clip(
+    seed: int, motion: str, variety: str, occlusion: int
+) -> pt.synth.SyntheticSequence:
+    """A decision clip's recording: ``motion`` (``"name"`` or ``"name@start"``, see
+    :func:`split_start`) of a tuning seed, 120 frames at 30 fps, 320x240, no RGB."""
+    recording, start = split_start(motion)
+    return pt.synth.generate(
+        seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occlusion, width=320,
+        height=240, with_rgb=False, variety=variety, motion_start=start,
+    )  # fmt: skip
+
+
 def _check(seeds: list[int], option: str) -> None:
     try:
         check_seeds(seeds)
@@ -359,11 +371,7 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     (``"shared"``, :func:`tune.shared_measures`; ``paired.py --shared`` reads them)."""
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
-            recording, start = split_start(motion)
-            seq = pt.synth.generate(
-                seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-                height=240, with_rgb=False, variety=variety, motion_start=start,
-            )  # fmt: skip
+            seq = generate_clip(seed, motion, variety, occ)
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
             first = None  # the first variant's keypoints: the others' "shared" baseline
             for name, kwargs in variants.items():

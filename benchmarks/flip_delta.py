@@ -26,7 +26,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
-from decide import cmu_late, split_start
+from decide import cmu_late, generate_clip
 from parts import add_part_arguments, check_part, share
 
 import posetrack as pt
@@ -115,11 +115,7 @@ def main() -> int:
     spy(events)
     rows = []
     for seed, motion, variety, occ, ts in share(changed_runs(a.screen, a.variant), a):
-        recording, start = split_start(motion)
-        seq = pt.synth.generate(
-            seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-            height=240, with_rgb=False, variety=variety, motion_start=start,
-        )  # fmt: skip
+        seq = generate_clip(seed, motion, variety, occ)
         events.clear()
         config = pt.TrackerConfig(reinit_check_tracked=25)
         pt.Tracker(seq.intrinsics, config, mode="offline", seed=ts).run(

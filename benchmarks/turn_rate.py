@@ -34,7 +34,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from decide import clips, split_start
+from decide import clips, generate_clip
 from flip_delta import left_axis
 from parts import add_part_arguments, check_part, share
 from seeds import parse_seeds
@@ -60,11 +60,7 @@ def wrapped(d: np.ndarray) -> np.ndarray:
 def track_run(group, seed, motion, variety, occ, mode, tseed) -> dict:
     """One clip tracked with the default tracker: its per-frame facing, the truth's, and the
     per-frame status."""
-    recording, start = split_start(motion)
-    seq = pt.synth.generate(
-        seed, motion=recording, n_frames=120, fps=30.0, occlusion_level=occ, width=320,
-        height=240, with_rgb=False, variety=variety, motion_start=start,
-    )  # fmt: skip
+    seq = generate_clip(seed, motion, variety, occ)
     res = pt.Tracker(seq.intrinsics, mode=mode, seed=tseed).run(
         seq.depth, seq.keypoints2d, seq.confidence
     )
