@@ -1921,12 +1921,17 @@ class Tracker:
         self._duplicate_filter = copy.deepcopy(duplicate_filter)
 
     def _refine_settings(self) -> ShapeFitSettings:
-        """:attr:`refine`, its image no larger than the sensor's. The shape pre-pass is the
-        tracker's business, not the program's: with or without it, one program."""
+        """:attr:`refine`, its image no larger than the sensor's. When and on how many frames
+        the refinement runs (``frames``, the online and offline schedules, the pre-pass gate)
+        is the tracker's business, not the program's: those fields take their defaults here,
+        so every schedule runs one program (``frames`` reaches it as ``pad_to``)."""
         H, W = self.intrinsics.shape
+        plain = ShapeFitSettings()
         return dataclasses.replace(
             self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H),
-            offline_first=0,
+            frames=plain.frames, online_after=plain.online_after,
+            online_first=plain.online_first, offline_first=plain.offline_first,
+            offline_first_below=plain.offline_first_below,
         )  # fmt: skip
 
     def _refine_on(self, params, depths, kp2, lm_conf, frames_used) -> None:

@@ -5,6 +5,7 @@ compared in float32 on the device mean what the host's float64 comparisons mean.
 
 import numpy as np
 import pytest
+from conftest import quick_refine
 
 import posetrack as pt
 from posetrack import LOST, NO_OBSERVATION, TRACKED
@@ -117,7 +118,7 @@ def test_chunked_offline_run_is_the_frame_by_frame_one():
     )  # fmt: skip
     out = {}
     for chunk in (1, 16):
-        tracker = pt.Tracker(seq.intrinsics, LVM, chunk=chunk)
+        tracker = pt.Tracker(seq.intrinsics, LVM, chunk=chunk, refine=quick_refine())
         res = tracker.run(seq.depth, seq.people2d, seq.people_confidence, progress=None)
         out[chunk] = res, tracker.side_spans, tracker.side_span_groups
     (one, spans_one, groups_one), (chunked, spans, groups) = out[1], out[16]

@@ -307,7 +307,7 @@ def test_keypoints_vanish_then_return(seq, tmp_path):
     rec = posetrack.synth.save(
         dataclasses.replace(seq, keypoints2d=kp, confidence=conf), tmp_path / "rec"
     )
-    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video"))
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video", "--no-refine-shape"))
     assert code == 0, stderr
     assert "note: keypoints: nobody detected in 5 frame(s) (0-1, 7-9)" in stderr
     poses = io.read_poses_npz(tmp_path / "out" / "poses.npz")
@@ -344,7 +344,7 @@ def test_detector_on_the_wrong_spot_is_lost_then_recovered(seq, tmp_path):
     rec = posetrack.synth.save(
         dataclasses.replace(seq, keypoints2d=kp, confidence=conf), tmp_path / "rec"
     )
-    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video"))
+    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out", "--no-video", "--no-refine-shape"))
     assert code == 0, stderr
     poses = io.read_poses_npz(tmp_path / "out" / "poses.npz")
     status = poses["status"]
@@ -362,7 +362,8 @@ def test_allow_missing_flags_frames(rec, tmp_path):
     shutil.copytree(rec, copy)
     (copy / "depth" / "000005.png").unlink()
     (copy / "keypoints" / "000012_keypoints.json").unlink()
-    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--allow-missing", "--no-video"))
+    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--allow-missing", "--no-video",
+                                          "--no-refine-shape"))  # fmt: skip
     assert code == 0, stderr
     status = io.read_poses_npz(tmp_path / "out" / "poses.npz")["status"]
     assert status[5] == "no_observation" and status[12] == "no_observation"
@@ -370,7 +371,8 @@ def test_allow_missing_flags_frames(rec, tmp_path):
 
 
 def test_depth_overlay_without_rgb(rec, tmp_path):
-    code, _, stderr = run_cli(*track_args(rec, tmp_path / "out"), "--video-panel", "none")
+    args = track_args(rec, tmp_path / "out", "--no-refine-shape", "--video-panel", "none")
+    code, _, stderr = run_cli(*args)
     assert code == 0, stderr
     capture = cv2.VideoCapture(str(tmp_path / "out" / "overlay.mp4"))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == N_FRAMES
@@ -528,7 +530,8 @@ def test_drop_outside_turns_the_error_into_a_missing_keypoint(rec, tmp_path):
     copy = tmp_path / "rec"
     shutil.copytree(rec, copy)
     _outside(copy)
-    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--drop-outside", "--no-video"))
+    code, _, stderr = run_cli(*track_args(copy, tmp_path / "out", "--drop-outside", "--no-video",
+                                          "--no-refine-shape"))  # fmt: skip
     assert code == 0, stderr
     assert "outside the image marked missing in 1 frame(s) (6)" in stderr
     assert io.read_poses_npz(tmp_path / "out" / "poses.npz")["status"][6] == "tracked"
@@ -566,7 +569,7 @@ def test_ctrl_c_while_writing_leaves_the_previous_output(cli, rec, tmp_path, mon
         raise KeyboardInterrupt
 
     monkeypatch.setattr("posetrack.app._export.write_overlay", interrupted)
-    code, _, stderr = run_cli(*track_args(rec, out))
+    code, _, stderr = run_cli(*track_args(rec, out, "--no-refine-shape"))
     assert code == 130 and "interrupted" in stderr
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
@@ -640,7 +643,8 @@ def test_floor_frame_outputs(rec, seq, cli, poses, tmp_path):
 
 def test_floor_frame_without_a_floor_is_one_error_line(rec, tmp_path, monkeypatch):
     monkeypatch.setattr("posetrack._tracker.Tracker._fit_floor", lambda self, d, p: NO_FLOOR)
-    code, _, stderr = run_cli(*track_args(rec, tmp_path / "o", "--frame", "floor", "--no-video"))
+    args = track_args(rec, tmp_path / "o", "--frame", "floor", "--no-video", "--no-refine-shape")
+    code, _, stderr = run_cli(*args)
     errors = [line for line in stderr.splitlines() if line.startswith("error:")]
     assert code == 2 and len(errors) == 1 and errors[0].startswith("error: floor frame: ")
     assert stderr.splitlines()[-1] == errors[0]
@@ -687,8 +691,9 @@ def test_keypoints_scale_rescales(half_size_rec, cli, poses, tmp_path):
     scaled = io.read_poses_npz(out / "poses.npz")
     np.testing.assert_allclose(scaled["keypoints3d"], poses["keypoints3d"], atol=2e-3)
     # ... and 1 means "as they are": no refusal (the track then finds little).
-    code, _, stderr = run_cli(*track_args(half_size_rec, tmp_path / "p", "--no-video",
-                                          "--keypoints-scale", "1"))  # fmt: skip
+    args = track_args(half_size_rec, tmp_path / "p", "--no-video", "--keypoints-scale", "1",
+                      "--no-refine-shape")  # fmt: skip
+    code, _, stderr = run_cli(*args)
     assert code == 0, stderr
 
 

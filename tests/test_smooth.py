@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import quick_refine
 
 import posetrack as pt
 from posetrack import _arbitration, _body, _limbs, _smooth, _tracker
@@ -478,9 +479,7 @@ def test_online_refines_the_body_shape_causally(clip, modes, online_lag0_kp_shap
     refinement (nothing from the future), the frames after use the refined shape."""
     args = (clip.depth, clip.keypoints2d, clip.confidence)
     # 8 frames, after 16 tracked frames.
-    settings = dataclasses.replace(
-        pt.ShapeFitSettings.tracking("online"), online_after=16, online_first=0
-    )
+    settings = quick_refine("online", online_after=16, online_first=0)
     tr = pt.Tracker(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(*args)
     plain = online_lag0_kp_shape
@@ -521,9 +520,7 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
             starts.append((self.shape.to_dict(), len(params), self._online_tracked))
             super()._refine_on(params, *rest)
 
-    settings = dataclasses.replace(
-        pt.ShapeFitSettings.tracking("online"), online_first=8, online_after=16
-    )
+    settings = quick_refine("online", online_first=8, online_after=16)
     tr = Spy(clip.intrinsics, mode="online", lag=0, refine=settings)
     res = tr.run(clip.depth, clip.keypoints2d, clip.confidence)
     plain = online_lag0_kp_shape
@@ -563,11 +560,13 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     progress bar counts the pre-pass's frames, then the recording's."""
     from posetrack import _shapefit
 
-    settings = dataclasses.replace(pt.ShapeFitSettings.tracking("offline"), offline_first=16)
+    settings = quick_refine("offline", offline_first=16)
     alone = dataclasses.replace(settings, offline_first=0)
     progs = (_shapefit._observe_frames, _shapefit.refine_shape_core)
-    assert modes["offline"] is not None  # the default's refinement programs are built
-    before = [p._cache_size() for p in progs]
+    pre = pt.Tracker(clip.intrinsics, refine=alone).run(
+        clip.depth[:16], clip.keypoints2d[:16], clip.confidence[:16]
+    )  # fmt: skip
+    before = [p._cache_size() for p in progs]  # the programs of a run without the pre-pass
     tr = pt.Tracker(clip.intrinsics, refine=settings)
     res, calls = run_with_progress(tr, clip)
     assert (tr.prepass_frames(40), tr.prepass_frames(16), tr.progress_frames(40)) == (16, 0, 56)
@@ -575,11 +574,8 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     first = tr.refine_report["offline_first"]
     assert first["frames_used"].max() < 16 and tr.refine_report["frames_used"].max() >= 16
     assert tr.prepass_s > 0
-    # Both refinements ran the default's programs: the pre-pass compiles none of its own.
+    # Both refinements ran the programs of a run without it: the pre-pass compiles none.
     assert [p._cache_size() for p in progs] == before
-    pre = pt.Tracker(clip.intrinsics, refine=alone).run(
-        clip.depth[:16], clip.keypoints2d[:16], clip.confidence[:16]
-    )  # fmt: skip
     landmark_shape = modes["offline, kp shape"].shape.to_dict()
     assert pre.shape.to_dict() != landmark_shape  # the pre-pass refined it
     by_hand = pt.Tracker(clip.intrinsics, refine=alone, shape=pre.shape)
@@ -592,6 +588,24 @@ def test_offline_shape_prepass_is_the_first_frames_tracked_alone(clip, modes):
     assert pt.Tracker(clip.intrinsics, mode="online", refine=settings).prepass_frames(40) == 0
     with pytest.raises(ValueError, match="offline_first"):
         pt.ShapeFitSettings(frames=8, offline_first=4)
+
+
+def test_the_refinement_schedule_is_not_part_of_its_program(clip):
+    """When and on how many frames the tracker refines the shape (``frames``, the online and
+    offline schedules, the pre-pass gate) does not reach the compiled refinement: trackers
+    that differ only there run one program; a setting of the optimiser makes another."""
+    base = pt.ShapeFitSettings.tracking("online")
+    schedules = [
+        base,
+        dataclasses.replace(base, frames=6, online_first=0, online_after=30),
+        dataclasses.replace(base, offline_first=40, offline_first_below=0.6),
+    ]
+    keys = {pt.Tracker(clip.intrinsics, refine=s)._refine_settings() for s in schedules}
+    assert len(keys) == 1
+    (key,) = keys
+    assert (key.width, key.height, key.steps) == (base.width, base.height, base.steps)
+    other = pt.Tracker(clip.intrinsics, refine=dataclasses.replace(base, steps=50))
+    assert other._refine_settings() != key
 
 
 def test_the_pre_pass_gate_keeps_clean_starts_as_the_default(clip, modes):
@@ -774,8 +788,10 @@ def test_an_arm_swap_of_the_detector_is_undone_and_does_not_lock_in(clip, modes)
         kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
         conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
     args = (clip.depth, kp, conf, clip.intrinsics)
-    fixed = pt.track(*args)  # offline default: both directions, arbitrated by the depth
-    raw = pt.track(*args, sides=None)
+    # Offline default (both directions, arbitrated by the depth); the shape refinement with
+    # fewer steps, in both runs (what is compared is the relabelling).
+    fixed = pt.track(*args, refine=quick_refine())
+    raw = pt.track(*args, sides=None, refine=quick_refine())
     assert raw.exchanged is None
     seen = (conf[sw][:, [3, 4, 6, 7]] > 0.1).any(axis=1)
     assert fixed.exchanged[sw[seen], 0].mean() > 0.9
@@ -920,12 +936,13 @@ def test_online_the_depth_keeps_a_detector_swap_it_sees(clip, modes):
     refinement that comes due meanwhile runs after the decision, on frames seen before it."""
     sw = np.arange(12, 28)
     kp, conf = _arm_swap(clip, sw)
-    refine = dataclasses.replace(
-        pt.ShapeFitSettings.tracking("online"), online_after=13, online_first=0
-    )
+    refine = quick_refine("online", online_after=13, online_first=0)
     tr = pt.Tracker(clip.intrinsics, mode="online", sides=pt.SideSettings(), refine=refine)
     fixed = tr.run(clip.depth, kp, conf)
-    raw = pt.track(clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None)
+    raw = pt.track(
+        clip.depth, kp, conf, clip.intrinsics, mode="online", sides=None,
+        refine=quick_refine("online"),
+    )  # fmt: skip
     k = pt.ONLINE_LAG + 1
     assert [s[:2] for s in tr.side_spans][:1] == [(12, 12 + k)], tr.side_spans
     start, stop, delta_as, delta_ex, kept = tr.side_spans[0]
@@ -1136,7 +1153,9 @@ def test_online_an_ankle_reported_on_the_neck_is_dropped_not_fitted(clip):
     conf[ep, 13] = 0.55
     errs, dropped = {}, {}
     for name, dup in (("filter", "auto"), ("none", None)):
-        t = pt.Tracker(clip.intrinsics, mode="online", duplicates=dup)
+        t = pt.Tracker(
+            clip.intrinsics, mode="online", duplicates=dup, refine=quick_refine("online")
+        )
         r = t.run(clip.depth, kp, conf)
         errs[name] = np.linalg.norm(r.keypoints3d[ep, 13] - clip.joints3d[ep, 13], axis=-1)
         dropped[name] = t.duplicates_dropped
