@@ -579,3 +579,21 @@ def test_shared_frame_measures_leave_out_frames_only_one_version_answered():
     rec["cand"]["shared"]["vs"] = "lvm"  # measured against another variant
     with pytest.raises(SystemExit, match="no shared-frame measures against 'default'"):
         paired.run_changes([rec], "default", "cand", shared=True)
+
+
+def test_suite_time_sums_each_module_and_splits_off_compilation():
+    """benchmarks/suite_time.py: per-module sums of its tests, "rest" = wall - compile - trace,
+    modules sorted by wall time, and the totals over all modules."""
+    suite_time = load("suite_time")
+    row = dict(refinements=0, outcome="passed")
+    tests = {
+        "tests/test_a.py::one": dict(row, compile=2.0, trace=1.0, refine=0.5, wall=5.0),
+        "tests/test_a.py::two": dict(row, compile=0.0, trace=0.0, refine=0.0, wall=1.0),
+        "tests/test_b.py::one": dict(row, compile=7.0, trace=0.5, refine=3.0, wall=9.0),
+    }
+    s = suite_time.summarise(tests)
+    assert list(s["modules"]) == ["tests/test_b.py", "tests/test_a.py"]
+    a = s["modules"]["tests/test_a.py"]
+    assert (a["tests"], a["wall"], a["compile"], a["refine"]) == (2, 6.0, 2.0, 0.5)
+    assert a["rest"] == 3.0 and s["modules"]["tests/test_b.py"]["rest"] == 1.5
+    assert s["total"] == dict(compile=9.0, trace=1.5, refine=3.5, wall=15.0, rest=4.5)
