@@ -141,6 +141,17 @@ def print_tables(summary: dict, tests: dict[str, dict], top: int) -> None:
         )
 
 
+def _rounded(x):
+    """``x`` with every float rounded to milliseconds (the record stays small)."""
+    if isinstance(x, float):
+        return round(x, 3)
+    if isinstance(x, dict):
+        return {k: _rounded(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_rounded(v) for v in x]
+    return x
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     ours, pytest_args = argv, []
@@ -166,8 +177,17 @@ def main(argv: list[str] | None = None) -> int:
     print()
     print_tables(summary, clock.tests, args.top)
     print(f"\npytest exit code {int(code)}, {elapsed:.0f} s in all (collection included)")
+    import subprocess
+
+    from posetrack.app._machine import machine_info
+
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    ).stdout.strip()
     record = {
         "what": "test-suite time per module and test (benchmarks/suite_time.py)",
+        "machine": machine_info(),
+        "commit": commit or None,
         "cold": args.cold,
         "pytest_args": pytest_args or ["tests"],
         "exit_code": int(code),
@@ -177,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(record, indent=1))
+    tmp.write_text(json.dumps(_rounded(record), indent=1))
     tmp.replace(args.out)  # never a half-written record
     print(f"wrote {args.out}")
     return int(code)
