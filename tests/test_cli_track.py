@@ -370,6 +370,24 @@ def test_allow_missing_flags_frames(rec, tmp_path):
     assert (np.delete(status, [5, 12]) == "tracked").all()
 
 
+def test_the_offline_work_after_the_bar_is_announced(rec, tmp_path):
+    """Without --quiet the tracking bar is followed by a line saying what runs once it is
+    full (offline: the body-shape refinement and the motion model, seconds on 2 cores); the
+    per-frame mode has nothing after its bar."""
+
+    def loud(out, *extra):
+        return [a for a in track_args(rec, tmp_path / out, "--no-video", *extra) if a != "--quiet"]
+
+    code, _, stderr = run_cli(*loud("offline", "--no-refine-shape"))
+    assert code == 0, stderr
+    lines = stderr.splitlines()
+    i = lines.index(f"offline: smoothing the motion over all {N_FRAMES} frames")
+    assert lines[i - 1].startswith(f"tracking: 100% {N_FRAMES}/{N_FRAMES}"), lines
+    code, _, stderr = run_cli(*loud("per-frame", "--per-frame"))
+    assert code == 0, stderr
+    assert "tracking: 100%" in stderr and "offline:" not in stderr
+
+
 def test_depth_overlay_without_rgb(rec, tmp_path):
     args = track_args(rec, tmp_path / "out", "--no-refine-shape", "--video-panel", "none")
     code, _, stderr = run_cli(*args)

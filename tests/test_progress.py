@@ -148,3 +148,24 @@ def test_a_total_that_grows_is_followed(stream_type):
         bar(done, total, "")
     last = stream.getvalue().rstrip("\n").rsplit("\r", 1)[-1].splitlines()[-1]
     assert "7/7" in last and "100%" in last
+
+
+def test_a_note_follows_the_bar_once_when_it_fills():
+    """``note_when_done``: every call reaches the bar first; the note is written once, on its
+    own line after the bar's last, when done reaches total."""
+    stream = io.StringIO()
+    bar = ProgressBar("tracking", stream=stream)
+    progress = _progress.note_when_done(bar, "offline: smoothing the motion", stream=stream)
+    for done in range(1, 5):
+        progress(done, 4, "delta 0.30")
+        assert ("offline" in stream.getvalue()) == (done == 4)
+    lines = _lines(stream.getvalue())
+    assert lines[-1] == "offline: smoothing the motion"
+    assert lines[-2].startswith("tracking: 100% 4/4")
+    # A callback called again at the end still gets every call; the note is not repeated.
+    calls, notes = [], io.StringIO()
+    progress = _progress.note_when_done(lambda *c: calls.append(c), "done", stream=notes)
+    for done in (1, 2, 2, 2):
+        progress(done, 2)
+    assert calls == [(1, 2, ""), (2, 2, ""), (2, 2, ""), (2, 2, "")]
+    assert notes.getvalue() == "done\n"

@@ -160,7 +160,7 @@ def _track(args) -> int:
     from .._sides import SideSettings
     from .._tracker import Tracker
     from ._export import check_output_dir, save_results, status_counts
-    from ._progress import ProgressBar
+    from ._progress import ProgressBar, note_when_done
 
     t_start = time.perf_counter()
     progress = not args.quiet
@@ -254,6 +254,9 @@ def _track(args) -> int:
         motion=_motion(args),
     )  # fmt: skip
     bar = ProgressBar("tracking") if progress else None
+    if bar is not None and mode == "offline":  # seconds after the bar fills: say what runs
+        shape = "refining the body shape against the depth, then " if tracker.refine else ""
+        bar = note_when_done(bar, f"offline: {shape}smoothing the motion over all {n} frames")
     result = tracker.run(rec.depth, kp2d, conf, progress=bar)
     undone = (  # frames with each left/right group read exchanged (--fix-sides)
         None

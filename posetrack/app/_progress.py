@@ -202,3 +202,21 @@ class ProgressBar:
         if done >= total:
             bar.close()
             self._bar = None
+
+
+def note_when_done(progress, note: str, stream=None):
+    """A progress callback that calls ``progress(done, total, postfix)`` and then, the first
+    time ``done`` reaches ``total``, writes ``note`` on a line of its own (``stream``; None:
+    ``sys.stderr`` then): what a command says about work that runs after the last counted
+    unit, e.g. the offline mode's body-shape refinement and motion model, a few seconds on
+    2 CPU cores after the tracking bar has filled."""
+    said = False
+
+    def call(done: int, total: int, postfix: str = "") -> None:
+        nonlocal said
+        progress(done, total, postfix)
+        if done >= total and not said:
+            said = True
+            print(note, file=stream or sys.stderr, flush=True)
+
+    return call
