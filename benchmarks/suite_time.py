@@ -180,6 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     import subprocess
 
     from posetrack.app._machine import machine_info
+    from posetrack.io import atomic_write_text
 
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
@@ -196,9 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         "tests": clock.tests,
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(_rounded(record), indent=1))
-    tmp.replace(args.out)  # never a half-written record
+    atomic_write_text(args.out, json.dumps(_rounded(record), indent=1))  # never half-written
     print(f"wrote {args.out}")
     return int(code)
 

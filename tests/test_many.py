@@ -5,7 +5,6 @@ Small on purpose: 160x120, 10 frames, per-frame mode, B = 2, so the batched step
 for the whole module (the subprocesses read it from the shared cache).
 """
 
-import dataclasses
 import json
 import os
 import signal
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import quick_refine
 
 import posetrack as pt
 from posetrack.app import main
@@ -96,8 +96,8 @@ def test_track_many_shape_prepass_steps_in_its_slot_and_counts_its_frames(seqs):
     everywhere) and a bound on the largest, not element by element. The refinements take 20
     Adam steps instead of the default's 100: the slots and the comparisons are the same, and
     the test takes 11.5 s instead of 39 (2-core AMD EPYC, compilation cache warm)."""
-    refine = pt.ShapeFitSettings.tracking("offline")  # 8 frames: a pre-pass of 8 of the 10
-    opts = dict(refine=dataclasses.replace(refine, offline_first=T - 2, steps=20))
+    # 8 frames: a pre-pass of 8 of the 10; quick_refine's 20 steps
+    opts = dict(refine=quick_refine("offline", offline_first=T - 2))
     inputs = [(s.intrinsics, s.depth, s.keypoints2d, s.confidence) for s in seqs]
     calls = []
     many = pt.track_many(inputs, batch=2, progress=lambda d, t, p: calls.append((d, t)), **opts)
