@@ -51,8 +51,9 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 (``duplicates=None``), ``settleN``
 (``DuplicateSettings(settle=N)``; ``settle1`` is the default filter), ``bandM``
 (``TrackerConfig(lift_band=M)``, metres), ``agreeX`` (``TrackerConfig(lost_agreement=X)``),
-``followX`` (``FollowSettings(depth_band=X)``, metres), ``aloneN`` (the mode's
-``FollowSettings`` with ``alone_frames=N``), ``grouparb``
+``followX`` (``FollowSettings(depth_band=X)``, metres), ``spreadN`` (online: each
+body-shape refinement spread over N updates, ``ShapeFitSettings.online_spread=N``),
+``aloneN`` (the mode's ``FollowSettings`` with ``alone_frames=N``), ``grouparb``
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
 (``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
@@ -240,6 +241,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {**(settings(rest.removesuffix("-"), mode) if rest else {}), **out}
+    if variant.startswith("spread") and variant[6:].isdigit():  # online refinements in parts
+        return {"refine": dataclasses.replace(tracking, online_spread=int(variant[6:]))}
     if variant.startswith("alone"):  # aloneN: the mode's follower, alone_frames=N
         try:
             return {"follow": pt.FollowSettings.for_mode(mode, alone_frames=int(variant[5:]))}

@@ -122,6 +122,18 @@ class ShapeFitSettings:
     (0: not), on the best-observed frame of each of ``frames`` stretches of them; the frames
     after it are tracked with that shape until the refinement at ``online_after``, which
     starts again from the shape the tracker began with (the same prior), on its own frames."""
+    online_spread: int = 0
+    """``mode="online"``: how many :meth:`~posetrack.Tracker.update` calls share each
+    refinement. 0: all of it runs inside the update that completes ``online_first`` (or
+    ``online_after``) tracked frames, which returns only when it is done (a pause: ~2.5 s on
+    2 CPU cores, for a live camera ~75 frames at 30 fps). S >= 1: its Adam steps are split
+    into S parts of ``ceil(steps / S)`` steps, one part at each update from there (~25 ms a
+    step on 2 CPU cores at the tracker's 80 x 60), and the update after the last part takes the
+    refined shape up; the frames in between are tracked with the shape before it, and the
+    ``online_after`` refinement starts only once the earlier one is taken up (S above
+    ``online_after - online_first`` delays it). The same steps either way, in the same order;
+    deterministic (no threads). On 32 tuning runs S = 25 cost 1.8 mm of D (README, "Body shape
+    from depth"): for a live loop that must not wait, not the default."""
     offline_first: int = 0
     """``mode="offline"``: before the recording is tracked, track its first this many frames
     alone and refine the shape on them (the best-observed frame of each of ``frames`` stretches
@@ -179,6 +191,13 @@ class ShapeFitSettings:
             raise ValueError(
                 f"ShapeFitSettings.online_first must be 0 or in [frames ({self.frames}), "
                 f"online_after ({self.online_after})), got {self.online_first}"
+            )
+        spread = self.online_spread
+        if isinstance(spread, bool) or not isinstance(spread, int) or spread < 0:
+            raise ValueError(f"ShapeFitSettings.online_spread must be an int >= 0, got {spread!r}")
+        if spread > self.steps:
+            raise ValueError(
+                f"ShapeFitSettings.online_spread must be at most steps ({self.steps}), got {spread}"
             )
         if self.offline_first and self.offline_first < self.frames:
             raise ValueError(
@@ -364,12 +383,24 @@ def refine_shape_core(
     n = len(settings.fields)
     u0 = jnp.zeros((n,), _DTYPE)
     poses0 = normalize_params(poses.astype(_DTYPE))
+    zeros = (u0, jnp.zeros_like(poses0))
+    step = _adam_step(settings, base, frames, intrinsics)
+    (x, _, _), history = jax.lax.scan(
+        step, ((u0, poses0), zeros, zeros), jnp.arange(settings.steps)
+    )
+    final, (d, lm) = _objective(x[0], x[1], base, frames, intrinsics, settings)
+    history = jnp.concatenate([history, jnp.stack([final, d, lm])[None]])
+    return x[0], x[1], history
+
+
+def _adam_step(settings: ShapeFitSettings, base: BodyShape, frames: _Frames, intrinsics):
+    """One Adam step of the refinement, ``(carry, i) -> (carry, (loss, Delta, landmark))``
+    with ``carry = ((u, poses), m, v)`` and ``i`` the step's index (from 0)."""
     grad_fn = jax.value_and_grad(_objective, argnums=(0, 1), has_aux=True)
     b1, b2, eps = 0.9, 0.999, 1e-8
     lr_scale = jnp.asarray(
         [settings.shape_lr, settings.pose_lr if settings.fit_poses else 0.0], _DTYPE
     )
-    zeros = (u0, jnp.zeros_like(poses0))
 
     def step(carry, i):
         x, m, v = carry
@@ -389,12 +420,34 @@ def refine_shape_core(
         p = normalize_params(x[1] - decay * lr_scale[1] * upd[1])
         return ((u, p), m, v), jnp.stack([loss, d, lm])
 
-    (x, _, _), history = jax.lax.scan(
-        step, ((u0, poses0), zeros, zeros), jnp.arange(settings.steps)
-    )
-    final, (d, lm) = _objective(x[0], x[1], base, frames, intrinsics, settings)
-    history = jnp.concatenate([history, jnp.stack([final, d, lm])[None]])
-    return x[0], x[1], history
+    return step
+
+
+@program("refine_shape_part", static_argnums=(0, 1))
+def refine_shape_part(
+    settings: ShapeFitSettings,
+    count: int,
+    base: BodyShape,
+    frames: _Frames,
+    intrinsics: Intrinsics,
+    carry,
+    first,
+):
+    """``count`` of :func:`refine_shape_core`'s Adam steps, from step ``first`` (an int32
+    scalar) and ``carry = ((u, poses), m, v)``; steps past ``settings.steps`` leave the carry
+    as it is. Returns ``(carry, history (count, 3), final (3,))``: ``final`` is the objective
+    at the carry returned (the last part's is the refinement's last history row)."""
+    step = _adam_step(settings, base, frames, intrinsics)
+
+    def masked(c, i):
+        new, row = step(c, i)
+        keep = i < settings.steps
+        return jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, c), row
+
+    carry, history = jax.lax.scan(masked, carry, first + jnp.arange(count, dtype=jnp.int32))
+    (u, poses), _, _ = carry
+    final, (d, lm) = _objective(u, poses, base, frames, intrinsics, settings)
+    return carry, history, jnp.stack([final, d, lm])
 
 
 @program("refine_observe", rare=True)
@@ -450,11 +503,13 @@ def _frames_from_maps(
 
 
 def refine_programs(
-    settings: ShapeFitSettings, config: TrackerConfig, shape, intrinsics: Intrinsics, frames: int
+    settings: ShapeFitSettings, config: TrackerConfig, shape, intrinsics: Intrinsics, frames: int,
+    part: int = 0,
 ) -> list[tuple]:
     """``(program, argument signature)`` of the two programs :func:`refine_shape` runs on
     ``frames`` frames of ``intrinsics``' size, for :meth:`~posetrack._programs.Program.prepare`
-    (``settings.crop`` must be off: a cropped window's size is known only from the data)."""
+    (``settings.crop`` must be off: a cropped window's size is known only from the data);
+    ``part`` > 0: the refinement a part of that many steps at a time instead of whole."""
     if settings.crop:
         raise ValueError("refine_programs: the window size of crop=True depends on the data")
     f32 = partial(jax.ShapeDtypeStruct, dtype=_DTYPE)
@@ -472,10 +527,15 @@ def refine_programs(
         ),
         *maps[:6], maps[-1],
     )
-    return [
-        (_observe_frames, observe_args),
-        (refine_shape_core, (settings, shape, f32((frames, 43)), frames_sig, intrinsics)),
-    ]
+    if part:
+        u, poses = f32((len(settings.fields),)), f32((frames, 43))
+        carry = ((u, poses), (u, poses), (u, poses))
+        run = (refine_shape_part, (
+            settings, part, shape, frames_sig, intrinsics, carry, jax.ShapeDtypeStruct((), np.int32)
+        ))  # fmt: skip
+    else:
+        run = (refine_shape_core, (settings, shape, f32((frames, 43)), frames_sig, intrinsics))
+    return [(_observe_frames, observe_args), run]
 
 
 def _windows(z_fg, caps, small_intr: Intrinsics, margin: int, step: int):
@@ -571,6 +631,17 @@ def refine_shape(
     Raises:
         ValueError: naming the argument, for inconsistent shapes or non-finite values.
     """
+    return _start_refinement(
+        shape, params, depths, keypoints2d, confidence, intrinsics, settings=settings,
+        config=config, floor=floor, depth_scale=depth_scale, pad_to=pad_to,
+    ).run()  # fmt: skip
+
+
+def _start_refinement(
+    shape, params, depths, keypoints2d, confidence, intrinsics, *, settings, config, floor,
+    depth_scale, pad_to,
+) -> _Refinement:
+    """:func:`refine_shape`'s checks and observation maps (its arguments), ready to run."""
     if not isinstance(shape, BodyShape):
         raise ValueError(f"refine_shape: shape must be a posetrack.BodyShape, got {type(shape)}")
     if not isinstance(intrinsics, Intrinsics):
@@ -660,28 +731,84 @@ def refine_shape(
     frames = jax.tree.map(jax.device_put, _frames_from_maps(
         *host((z_d, z_fg, known, lm, rays, mpp)), host(small_intr), origin, size, weight
     ))  # fmt: skip
-    u, poses_out, history = refine_shape_core(settings, base, poses, frames, intr)
-    u = np.asarray(u, dtype=np.float64)
-    history = np.asarray(history, dtype=np.float64)
-    refined = apply_factors(base, device_f32(u), settings.fields)
-    refined = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), refined)
-    factors = {
-        f: (float(SHOULDER_DROP_UNIT * u[k]) if f == "shoulder_drop" else float(np.exp(u[k])))
-        for k, f in enumerate(settings.fields)
-    }
-    seconds = time.perf_counter() - t0
+    return _Refinement(settings, base, poses, frames, intr, F, size, t0)
 
-    def summary(row):
-        return {"loss": float(row[0]), "delta": float(row[1]), "landmark": float(row[2])}
 
-    report = {
-        "factors": factors,
-        "before": summary(history[0]),
-        "after": summary(history[-1]),
-        "params": np.asarray(poses_out, dtype=np.float64)[:F],
-        "history": history,
-        "seconds": seconds,
-        "frames": F,
-        "window": tuple(int(v) for v in size),
-    }
-    return refined, report
+class _Refinement:
+    """A :func:`refine_shape` whose observation maps are made: :meth:`run` runs it whole
+    (one program); :meth:`part` runs its Adam steps a part at a time (``Tracker``'s
+    ``online_spread``) and :meth:`finish` then returns the same ``(refined, report)``."""
+
+    def __init__(self, settings, base, poses, frames, intr, F: int, size, t0: float):
+        self.settings, self.base, self.poses, self.frames, self.intr = (
+            settings, base, poses, frames, intr
+        )
+        self.F, self.size, self.t0 = F, size, t0
+        self.done = 0
+        """Adam steps run by :meth:`part`."""
+        self._carry = None
+        self._history: list = []
+        self._final = None
+        self.busy_s = 0.0
+        """Seconds spent in :meth:`part` calls (and in making the maps)."""
+        self._started = time.perf_counter()
+
+    def run(self) -> tuple[BodyShape, dict]:
+        u, poses_out, history = refine_shape_core(
+            self.settings, self.base, self.poses, self.frames, self.intr
+        )
+        return self._result(u, poses_out, history)
+
+    def part(self, count: int) -> None:
+        """Run the next ``count`` Adam steps (fewer at the end), waiting for them."""
+        t0 = time.perf_counter()
+        if self._carry is None:
+            u0 = jnp.zeros((len(self.settings.fields),), _DTYPE)
+            poses0 = normalize_params(self.poses.astype(_DTYPE))
+            zeros = (u0, jnp.zeros_like(poses0))
+            self._carry = ((u0, poses0), zeros, zeros)
+        self._carry, history, self._final = refine_shape_part(
+            self.settings, count, self.base, self.frames, self.intr, self._carry,
+            np.int32(self.done),
+        )  # fmt: skip
+        keep = min(count, self.settings.steps - self.done)
+        self._history.append(np.asarray(history)[:keep])
+        self.done += keep
+        self.busy_s += time.perf_counter() - t0
+
+    def finish(self) -> tuple[BodyShape, dict]:
+        """``(refined, report)`` once :meth:`part` has run every step; the report's
+        ``seconds`` are the parts' (and the maps'), not the wall time they spanned."""
+        if self.done < self.settings.steps:
+            raise RuntimeError(f"refinement: {self.done} of {self.settings.steps} steps run")
+        (u, poses_out), _, _ = self._carry
+        history = np.concatenate([*self._history, np.asarray(self._final)[None]])
+        return self._result(u, poses_out, history, self.busy_s + self._started - self.t0)
+
+    def _result(self, u, poses_out, history, seconds=None) -> tuple[BodyShape, dict]:
+        settings, base, F, size = self.settings, self.base, self.F, self.size
+        u = np.asarray(u, dtype=np.float64)
+        history = np.asarray(history, dtype=np.float64)
+        refined = apply_factors(base, device_f32(u), settings.fields)
+        refined = jax.tree.map(lambda x: jnp.asarray(x, _DTYPE), refined)
+        factors = {
+            f: (float(SHOULDER_DROP_UNIT * u[k]) if f == "shoulder_drop" else float(np.exp(u[k])))
+            for k, f in enumerate(settings.fields)
+        }
+        if seconds is None:
+            seconds = time.perf_counter() - self.t0
+
+        def summary(row):
+            return {"loss": float(row[0]), "delta": float(row[1]), "landmark": float(row[2])}
+
+        report = {
+            "factors": factors,
+            "before": summary(history[0]),
+            "after": summary(history[-1]),
+            "params": np.asarray(poses_out, dtype=np.float64)[:F],
+            "history": history,
+            "seconds": seconds,
+            "frames": F,
+            "window": tuple(int(v) for v in size),
+        }
+        return refined, report

@@ -55,7 +55,13 @@ from ._programs import (
     program,
 )
 from ._result import TrackResult, keypoint_confidence
-from ._shapefit import ShapeFitSettings, refine_programs, refine_shape
+from ._shapefit import (
+    ShapeFitSettings,
+    _Refinement,
+    _start_refinement,
+    refine_programs,
+    refine_shape,
+)
 from ._sides import (
     SideLabeller,
     SideSettings,
@@ -100,6 +106,18 @@ _NO_POSE = body.facing_camera_params_np(2.5)
 
 #: Fewer tracked frames than this and ``refine`` is skipped (the shape stays as estimated).
 _MIN_REFINE_FRAMES = 3
+
+
+@dataclasses.dataclass
+class _Refining:
+    """An online refinement run a part at a time (``ShapeFitSettings.online_spread``): the
+    work, its frames' indices, the earlier refinement's ``(report, seconds)`` to record with
+    it, and the :attr:`Tracker._frames_seen` of its last part (one part a frame)."""
+
+    work: _Refinement
+    frames_used: np.ndarray
+    first: tuple | None
+    at: int
 
 #: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
 #: causal motion model with a fixed lag, or each frame on its own (the paper).
@@ -530,6 +548,9 @@ class Tracker:
         self._online_first_pending = self._online_refine_pending and self.refine.online_first > 0
         self._online_kept_first: dict[int, tuple] = {}
         self._online_shape0 = None
+        # A refinement run a part at a time (``refine.online_spread``) and not yet taken up;
+        # one of an earlier recording is dropped.
+        self._refining: _Refining | None = None
         self._arbitration = None
         self.lagged: tuple[int, np.ndarray, np.ndarray] | None = None
         """Online mode: ``(frame, params (43,), keypoints (18, 3))`` of the frame ``lag``
@@ -684,8 +705,10 @@ class Tracker:
                 return []
             # Working out their argument shapes traces the observation (about 1 s): done in
             # the builder thread, not before the first frame.
+            spread = self.refine.online_spread if self.mode == "online" else 0
+            part = -(-self.refine.steps // spread) if spread else 0
             return refine_programs(
-                self._refine_settings(), self.config, shape, intr, self.refine.frames
+                self._refine_settings(), self.config, shape, intr, self.refine.frames, part
             )  # fmt: skip
 
         later = [smooth_jobs, refine_jobs]
@@ -1068,7 +1091,10 @@ class Tracker:
         detection was followed.
         """
         if not self._arbitrates_online:
-            return self._update_once(depth, keypoints2d, confidence)
+            out = self._update_once(depth, keypoints2d, confidence)
+            if self._refining is not None:  # its next part (online_spread)
+                self._online_refine_due()
+            return out
         return self._update_arbitrated(depth, keypoints2d, confidence)
 
     @property
@@ -1229,32 +1255,75 @@ class Tracker:
 
     def _online_refine_due(self) -> None:
         """Refine the body shape online once ``refine.online_after`` tracked frames are in
-        (and once at ``refine.online_first``, where set)."""
+        (and once at ``refine.online_first``, where set). With ``refine.online_spread`` a
+        refinement runs a part of its steps at each call (one per frame seen) and is taken
+        up at the call after its last part; the next refinement starts only then."""
+        if self._refining is not None:
+            if self._refining.at == self._frames_seen:
+                return
+            self._advance_refinement()
+            if self._refining is not None:
+                return
         if self._online_first_pending and self._online_tracked >= self.refine.online_first:
             self._online_first_pending = False
             kept, self._online_kept_first = self._online_kept_first, {}
             if len(kept) >= _MIN_REFINE_FRAMES:
                 self._online_shape0 = self.shape
                 self._refine_kept(kept)
+                if self._refining is not None:
+                    return
         if not self._online_refine_pending or self._online_tracked < self.refine.online_after:
             return
         self._online_refine_pending = False
         kept, self._online_kept = self._online_kept, {}
         if len(kept) < _MIN_REFINE_FRAMES:
             return
-        first, first_s = self.refine_report, self.refine_s
-        if self._online_shape0 is not None:  # the same prior as without the earlier one
-            self.shape = self._online_shape0
+        if self._online_shape0 is None:
+            self._refine_kept(kept)
+            return
+        first = (self.refine_report, self.refine_s)
+        if self.refine.online_spread:  # the earlier shape tracks until this one is taken up
+            self._refine_kept(kept, self._online_shape0, first)
+            return
+        self.shape = self._online_shape0  # the same prior as without the earlier one
         self._refine_kept(kept)
-        if self._online_shape0 is not None:
-            self.refine_s += first_s
-            self.refine_report["online_first"] = first
+        self.refine_s += first[1]
+        self.refine_report["online_first"] = first[0]
 
-    def _refine_kept(self, kept: dict) -> None:
+    def _refine_kept(self, kept: dict, start=None, first: tuple | None = None) -> None:
         """:meth:`_refine_on` the frames of ``kept`` (stretch -> ``(n3d, *entry)``, see
-        :func:`_keep_best_observed`), in stretch order."""
+        :func:`_keep_best_observed`), in stretch order; with ``refine.online_spread``, start
+        refining ``start`` (default :attr:`shape`) on them a part at a time (``first``: the
+        earlier refinement's ``(report, seconds)``, recorded with this one)."""
         rows = [kept[k][1:] for k in sorted(kept)]
-        self._refine_on(*(np.stack(column) for column in zip(*rows)))
+        params, depths, kp2, lm_conf, frames_used = (np.stack(c) for c in zip(*rows))
+        if not self.refine.online_spread:
+            self._refine_on(params, depths, kp2, lm_conf, frames_used)
+            return
+        work = _start_refinement(
+            self.shape if start is None else start, params, depths, kp2, lm_conf,
+            self.intrinsics, settings=self._refine_settings(), config=self.config,
+            floor=np.asarray(self._floor), depth_scale=1000.0, pad_to=self.refine.frames,
+        )  # fmt: skip
+        self._refining = _Refining(work, frames_used, first, at=-1)
+        self._advance_refinement()
+
+    def _advance_refinement(self) -> None:
+        """The pending online refinement's next part, or, all run, its shape taken up
+        (:attr:`shape`, :attr:`refine_report`, :attr:`refine_s`)."""
+        r = self._refining
+        r.at = self._frames_seen
+        steps = self.refine.steps
+        if r.work.done < steps:
+            r.work.part(-(-steps // self.refine.online_spread))  # as refine_jobs prepares
+            return
+        self._refining = None
+        self.shape, report = r.work.finish()
+        report["frames_used"] = np.asarray(r.frames_used)
+        self.refine_report, self.refine_s = report, report["seconds"]
+        if r.first is not None:
+            self.refine_s += r.first[1]
+            self.refine_report["online_first"] = r.first[0]
 
     def _update_frame(self, depth, keypoints2d, confidence) -> tuple[FrameEstimate | None, int]:
         """:meth:`update` without the online motion model."""
@@ -1931,7 +2000,7 @@ class Tracker:
             self.refine, width=min(self.refine.width, W), height=min(self.refine.height, H),
             frames=plain.frames, online_after=plain.online_after,
             online_first=plain.online_first, offline_first=plain.offline_first,
-            offline_first_below=plain.offline_first_below,
+            offline_first_below=plain.offline_first_below, online_spread=plain.online_spread,
         )  # fmt: skip
 
     def _refine_on(self, params, depths, kp2, lm_conf, frames_used) -> None:

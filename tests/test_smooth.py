@@ -543,6 +543,51 @@ def test_online_refines_early_then_again_from_the_first_shape(clip, online_lag0_
         pt.ShapeFitSettings(frames=8, online_first=60, online_after=60)
 
 
+def test_online_spread_runs_the_refinement_a_part_at_each_update(clip, online_lag0_kp_shape):
+    """``online_spread``: no update runs a refinement whole; S updates each run a part of its
+    steps, the frames until the update after the last part are tracked with the shape before
+    it (here the landmark-based one: the same poses as without a refinement), and the shape
+    taken up is the one the whole refinement finds (the same steps on the same frames)."""
+    S = 4  # quick_refine's 20 steps: 5 a part
+    seen = []
+
+    class Spy(pt.Tracker):
+        def update(self, *frame):
+            out = super().update(*frame)
+            pending = self._refining
+            seen.append((pending.work.done if pending else None, self.shape.to_dict()))
+            return out
+
+    args = (clip.depth, clip.keypoints2d, clip.confidence)
+    whole = Spy(clip.intrinsics, mode="online", lag=0, refine=quick_refine("online",
+                online_after=16, online_first=0))  # fmt: skip
+    whole.run(*args)
+    by_whole, seen[:] = seen[:], []
+    tr = Spy(clip.intrinsics, mode="online", lag=0, refine=quick_refine("online",
+             online_after=16, online_first=0, online_spread=S))  # fmt: skip
+    res = tr.run(*args)
+    landmark_shape = online_lag0_kp_shape.shape.to_dict()
+    at_whole = next(t for t, (_, sh) in enumerate(by_whole) if sh != landmark_shape)
+    at = next(t for t, (_, sh) in enumerate(seen) if sh != landmark_shape)
+    parts = [done for done, _ in seen if done is not None]
+    assert parts == [5, 10, 15, 20], parts  # one part a frame, none whole
+    assert [d for d, _ in seen[at - S : at]] == parts and seen[at][0] is None
+    assert at >= at_whole + S
+    plain = online_lag0_kp_shape.keypoints3d
+    np.testing.assert_array_equal(res.keypoints3d[:at], plain[:at])
+    assert not np.array_equal(res.keypoints3d[at + 1 :], plain[at + 1 :])
+    for k, v in whole.shape.to_dict().items():
+        assert abs(res.shape.to_dict()[k] - v) <= 1e-4 * max(1.0, abs(v)), k
+    np.testing.assert_array_equal(
+        tr.refine_report["frames_used"], whole.refine_report["frames_used"]
+    )
+    assert tr.refine_report["history"].shape == whole.refine_report["history"].shape
+    assert 0 < tr.refine_s
+    for bad in (-1, True, 2.0, 151):
+        with pytest.raises(ValueError, match="online_spread"):
+            pt.ShapeFitSettings(online_spread=bad)
+
+
 def run_with_progress(tracker, clip):
     """``tracker.run`` over ``clip``: its result and the progress calls, (done, total) each."""
     calls = []
