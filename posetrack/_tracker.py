@@ -119,6 +119,7 @@ class _Refining:
     first: tuple | None
     at: int
 
+
 #: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
 #: causal motion model with a fixed lag, or each frame on its own (the paper).
 MODES = ("offline", "online", "per-frame")
