@@ -148,6 +148,12 @@ class ShapeFitSettings:
     the tuning clips' clean starts from their occluded ones (benchmarks/README.md, "A
     pre-pass for occluded starts")."""
 
+    @property
+    def online_part(self) -> int:
+        """Adam steps per part with ``online_spread`` (``ceil(steps / online_spread)``; 0:
+        not spread)."""
+        return -(-self.steps // self.online_spread) if self.online_spread else 0
+
     @classmethod
     def tracking(cls, mode: str = "offline") -> ShapeFitSettings:
         """What :class:`~posetrack.Tracker` runs in ``mode`` (``refine="auto"``): 8 frames,
@@ -381,17 +387,22 @@ def refine_shape_core(
         order), the refined poses (quaternions wxyz, unit) and the per-step
         ``(loss, mean Delta, mean landmark term)`` (``step 3``).
     """
-    n = len(settings.fields)
-    u0 = jnp.zeros((n,), _DTYPE)
-    poses0 = normalize_params(poses.astype(_DTYPE))
-    zeros = (u0, jnp.zeros_like(poses0))
     step = _adam_step(settings, base, frames, intrinsics)
     (x, _, _), history = jax.lax.scan(
-        step, ((u0, poses0), zeros, zeros), jnp.arange(settings.steps)
+        step, _start_carry(settings, poses), jnp.arange(settings.steps)
     )
     final, (d, lm) = _objective(x[0], x[1], base, frames, intrinsics, settings)
     history = jnp.concatenate([history, jnp.stack([final, d, lm])[None]])
     return x[0], x[1], history
+
+
+def _start_carry(settings: ShapeFitSettings, poses):
+    """The refinement's carry before its first step: ``((u, poses), m, v)`` with the factors
+    ``u`` and Adam's moments zero and the given poses' quaternions normalised."""
+    u0 = jnp.zeros((len(settings.fields),), _DTYPE)
+    poses0 = normalize_params(poses.astype(_DTYPE))
+    zeros = (u0, jnp.zeros_like(poses0))
+    return (u0, poses0), zeros, zeros
 
 
 def _adam_step(settings: ShapeFitSettings, base: BodyShape, frames: _Frames, intrinsics):
@@ -764,10 +775,7 @@ class _Refinement:
         """Run the next ``count`` Adam steps (fewer at the end), waiting for them."""
         t0 = time.perf_counter()
         if self._carry is None:
-            u0 = jnp.zeros((len(self.settings.fields),), _DTYPE)
-            poses0 = normalize_params(self.poses.astype(_DTYPE))
-            zeros = (u0, jnp.zeros_like(poses0))
-            self._carry = ((u0, poses0), zeros, zeros)
+            self._carry = _start_carry(self.settings, self.poses)
         self._carry, history, self._final = refine_shape_part(
             self.settings, count, self.base, self.frames, self.intr, self._carry,
             np.int32(self.done),

@@ -706,8 +706,7 @@ class Tracker:
                 return []
             # Working out their argument shapes traces the observation (about 1 s): done in
             # the builder thread, not before the first frame.
-            spread = self.refine.online_spread if self.mode == "online" else 0
-            part = -(-self.refine.steps // spread) if spread else 0
+            part = self.refine.online_part if self.mode == "online" else 0
             return refine_programs(
                 self._refine_settings(), self.config, shape, intr, self.refine.frames, part
             )  # fmt: skip
@@ -1314,9 +1313,8 @@ class Tracker:
         (:attr:`shape`, :attr:`refine_report`, :attr:`refine_s`)."""
         r = self._refining
         r.at = self._frames_seen
-        steps = self.refine.steps
-        if r.work.done < steps:
-            r.work.part(-(-steps // self.refine.online_spread))  # as refine_jobs prepares
+        if r.work.done < self.refine.steps:
+            r.work.part(self.refine.online_part)  # the size refine_jobs prepares
             return
         self._refining = None
         self.shape, report = r.work.finish()
