@@ -34,7 +34,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
-``farboundS`` (the same with ``bound_turn_sin=S``),
+``farboundS`` (the same with ``bound_turn_sin=S``), ``farboundT`` (the bound only while the
+previous output passed the track-loss test: ``bound_trusted=True``),
 ``alllm-norefit`` (that and no
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN`` (that
 with ``reinit_check_tracked=N``), ``oaccX``
@@ -227,6 +228,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(far_side_2d=True)}
     if variant == "farbound":
         return {"config": pt.TrackerConfig(far_side_bound=True)}
+    if variant == "farboundT":  # the bound only behind a pose that passed the loss test
+        return {"config": pt.TrackerConfig(far_side_bound=True, bound_trusted=True)}
     if variant.startswith("farbound"):  # farboundS: the bound from a turn of sine S
         try:
             turn = float(variant[len("farbound") :])
@@ -352,8 +355,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
-        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farX', 'priorS/M', 'rpriorS/M', "
-        "'girthS', 'twopassS', "
+        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farX', 'priorS/M', "
+        "'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
 

@@ -180,6 +180,13 @@ class TrackerConfig(eqx.Module):
     degrees) the far side is still mostly seen, and treating its depth as a bound let the
     body drift back (tuning clips 1277, 1287: +20 and +15 mm; both unchanged at 0.75, which
     keeps the gains of 1211, 1276 and 1286; 0.87 lost 1286's). Traced."""
+    bound_trusted: bool = eqx.field(default=False, static=True)
+    """Off by default. ``far_side_bound`` applies only while the previous frame's output
+    passed the track-loss test (its Delta at most ``lost_delta`` and its agreement at least
+    ``lost_agreement``; :attr:`posetrack.TrackState.trusted`). The bound trusts the previous
+    pose's facing to say which side is far; a pose that failed the test (a track coming
+    apart, often turned round) bounds the near side instead and pulls the body further off
+    (tuning clip 1700, CMU 131_03: +109 mm, benchmarks/README.md). Not in the paper."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
@@ -423,6 +430,11 @@ class TrackerConfig(eqx.Module):
             raise ValueError(
                 f"TrackerConfig.limb_hypotheses must be in 0..4 and smaller than the number of "
                 f"hypotheses ({self.n}), got {self.limb_hypotheses}"
+            )
+        if self.bound_trusted and not self.far_side_bound:
+            raise ValueError(
+                "TrackerConfig.bound_trusted gates far_side_bound; set far_side_bound=True too "
+                "(got bound_trusted=True, far_side_bound=False)"
             )
         if self.far_side_2d and self.far_side_bound:
             raise ValueError(

@@ -49,6 +49,11 @@ class TrackState(eqx.Module):
     """The previous frame's output pose."""
     key: PRNGKeyArray
     """Random key, split once per frame."""
+    trusted: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
+    """Whether the previous output passed the track-loss test (Delta at most
+    ``TrackerConfig.lost_delta``, landmark agreement at least ``lost_agreement``: the host's
+    test, read in the step); True for a fresh start. ``TrackerConfig.bound_trusted`` reads
+    it."""
 
 
 class FrameEstimate(eqx.Module):
@@ -241,6 +246,8 @@ def tracker_step(
         # in 2D, their depth a bound the joint stays behind (a surface in front of it)
         bounds = side_view_bounds(state.best, config.bound_turn_sin) & lm.has_depth
         enough = jnp.sum(lm.has_depth & ~bounds) >= config.bound_min_landmarks
+        if config.bound_trusted:  # (off by default) only behind a pose that passed the test
+            enough = enough & state.trusted
         lm = as_bounds(lm, bounds & enough)
     use3d, use2d = landmark_subsets(config, key, shape, intrinsics, depth, lm, state.previous)
     if config.occlusion_gate:
@@ -332,14 +339,15 @@ def tracker_step(
     # winner is by design, not doubt about it, so only the other hypotheses count.
     regular = kps[: max(N - S, 1)]
     spread = jnp.median(jnp.linalg.norm(regular - kps[best][None], axis=-1), axis=0)
+    n3 = jnp.sum(lm.has_depth)
+    agreement = landmark_agreement(kps[best], lm, config.consensus_distance)
     new_state = TrackState(
         hypotheses=hyps,
         previous=jax.vmap(lambda p: body.keypoints(shape, p))(hyps),
         best=chosen,
         key=key_next,
+        trusted=(chosen_delta <= config.lost_delta) & (agreement >= config.lost_agreement),
     )
-    n3 = jnp.sum(lm.has_depth)
-    agreement = landmark_agreement(kps[best], lm, config.consensus_distance)
     est = FrameEstimate(
         params=chosen,
         keypoints3d=kps[best],

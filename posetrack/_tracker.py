@@ -653,7 +653,8 @@ class Tracker:
         depth, kp, conf = f32(intr.shape), f32((18, 2)), f32((18,))
         key = jax.ShapeDtypeStruct(self._key.shape, self._key.dtype)  # a split key's too
         state = TrackState(
-            hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key
+            hypotheses=f32((N, 43)), previous=f32((N, 18, 3)), best=f32((43,)), key=key,
+            trusted=jax.ShapeDtypeStruct((), bool),
         )
         step_args = (self.config, shape, intr, f32((4,)), state, depth, kp, conf)
         main = step
@@ -967,6 +968,7 @@ class Tracker:
             previous=jax.device_put(np.tile(np.asarray(kps)[None], (N, 1, 1))),
             best=res.params,
             key=sub,
+            trusted=jax.device_put(np.True_),
         )
         self._lost_run = 0
         self._ever_initialized = True
