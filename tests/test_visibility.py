@@ -159,9 +159,10 @@ def step():
     return jax.jit(pt.tracker_step)
 
 
-def _side_step(side, step, config, conf):
+def _side_step(side, step, config, conf, trusted=True, with_state=False):
     """One jitted step on the side view, the far wrist lifted from the rendered depth onto
-    the torso; W^h made to favour drawing its landmark."""
+    the torso; W^h made to favour drawing its landmark. ``trusted``: the state's
+    ``TrackState.trusted``; ``with_state``: return ``(new state, estimate)``."""
     p, kps, depth, far, _ = side
     n = config.n
     off = np.asarray(surface_offsets(SHAPE))
@@ -174,11 +175,12 @@ def _side_step(side, step, config, conf):
         previous=jnp.tile(jnp.asarray(previous, jnp.float32)[None], (n, 1, 1)),
         best=p,
         key=jax.random.PRNGKey(0),
+        trusted=jnp.asarray(trusted),
     )
     kp2d = jnp.asarray(_project(kps), jnp.float32)
     floor = jnp.asarray(NO_FLOOR, jnp.float32)
-    _, est = step(config, SHAPE, INTR, floor, state, jnp.asarray(depth), kp2d, jnp.asarray(conf))
-    return est
+    out = step(config, SHAPE, INTR, floor, state, jnp.asarray(depth), kp2d, jnp.asarray(conf))
+    return out if with_state else out[1]
 
 
 #: Static fields shared by the step tests (one compiled program for all of them).
@@ -297,6 +299,40 @@ def test_far_side_bound_keeps_the_far_sides_depth_as_a_bound(side, step):
     assert not GATED.fit.residuals.depth_bounds
     with pytest.raises(ValueError, match="far_side_2d and far_side_bound"):
         GATED.replace(far_side_2d=True, far_side_bound=True)
+
+
+def test_bound_trusted_bounds_only_behind_a_pose_that_passed_the_loss_test(side, step):
+    """``bound_trusted``: behind a previous output that passed the track-loss test
+    (``TrackState.trusted``) the far side's depth is a bound as with ``far_side_bound``
+    alone; behind one that failed it the landmarks are used as lifted. The step sets the new
+    state's flag from its own output's Delta and agreement against ``lost_delta`` and
+    ``lost_agreement`` (traced: the same program)."""
+    _, _, _, far, _ = side
+    conf = np.full(18, 0.9, np.float32)
+    bound = GATED.replace(far_side_bound=True)
+    cfg = bound.replace(bound_trusted=True)
+    alone = _side_step(side, step, bound, conf)
+    plain = _side_step(side, step, GATED, conf)
+    new, est = _side_step(side, step, cfg, conf, trusted=True, with_state=True)
+    np.testing.assert_array_equal(depth_bounds(est.landmarks), depth_bounds(alone.landmarks))
+    assert np.asarray(depth_bounds(est.landmarks))[far]
+    doubted = _side_step(side, step, cfg, conf, trusted=False)
+    assert not np.asarray(depth_bounds(doubted.landmarks)).any()
+    np.testing.assert_array_equal(doubted.landmarks.has_depth, plain.landmarks.has_depth)
+    np.testing.assert_array_equal(doubted.landmarks.points3d, plain.landmarks.points3d)
+    # The new state's flag is the loss test of this frame's output.
+    delta, agreement = float(est.delta), float(est.agreement)
+    assert bool(new.trusted) == (delta <= cfg.lost_delta and agreement >= cfg.lost_agreement)
+    for lost_delta, lost_agreement, expected in (
+        (delta + 0.01, agreement - 0.01, True),
+        (delta - 0.01, agreement - 0.01, False),
+        (delta + 0.01, agreement + 0.01, False),
+    ):
+        c = cfg.replace(lost_delta=lost_delta, lost_agreement=lost_agreement)
+        new, _ = _side_step(side, step, c, conf, with_state=True)
+        assert bool(new.trusted) is expected
+    with pytest.raises(ValueError, match="bound_trusted"):
+        GATED.replace(bound_trusted=True)
 
 
 def test_the_far_side_gate_spares_the_near_sides_unconfident_keypoint(side, step):
