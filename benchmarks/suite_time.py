@@ -5,7 +5,9 @@ The brief asks for a suite of about 10 minutes on 2 cores; `.ci/run` starts from
 compilation cache, so compilation is part of every CI run. This runs pytest in this process
 with a small plugin: JAX's monitoring events give the seconds spent compiling
 (``backend_compile``) and tracing / lowering (``jaxpr_trace`` + ``jaxpr_to_mlir_module``) during
-each test (its fixtures' set-up included); ``Tracker._refine_on`` is timed by wrapping it.
+each test (its fixtures' set-up included); ``Tracker._refine_on`` (a whole refinement) and
+``Tracker._advance_refinement`` (one part of one spread over updates,
+``ShapeFitSettings.online_spread``) are timed by wrapping them.
 Work done in subprocesses (the command-line reliability tests, the notebooks' kernels) shows
 as "rest". It prints one table per module (sorted by wall time) and the slowest tests, and
 writes everything to JSON.
@@ -57,11 +59,12 @@ class SuiteClock:
         elif event in _TRACE:
             row["trace"] += duration
 
-    def on_refine(self, seconds: float) -> None:
+    def on_refine(self, seconds: float, finished: bool = True) -> None:
+        """A refinement's seconds; ``finished``: it is done (counted once, not per part)."""
         row = self._row()
         if row is not None:
             row["refine"] += seconds
-            row["refinements"] += 1
+            row["refinements"] += int(finished)
 
     def pytest_configure(self, config):
         install(self)  # here, not before pytest starts: its plugins' modules load first
@@ -100,6 +103,16 @@ def install(clock: SuiteClock) -> None:
             clock.on_refine(time.perf_counter() - t0)
 
     _tracker.Tracker._refine_on = timed
+    advance = _tracker.Tracker._advance_refinement
+
+    def timed_part(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        try:
+            return advance(self, *args, **kwargs)
+        finally:
+            clock.on_refine(time.perf_counter() - t0, finished=self._refining is None)
+
+    _tracker.Tracker._advance_refinement = timed_part
 
 
 def summarise(tests: dict[str, dict]) -> dict:
