@@ -188,8 +188,9 @@ class TrackerConfig(eqx.Module):
     apart, often turned round) bounds the near side instead and pulls the body further off
     (tuning clip 1700, CMU 131_03: +109 mm). Its screen (2026-12-06, 72 fresh tuning runs x 3
     tracker seeds, offline) gained 2.9 mm (t -2.9; side views -12 mm) but answered 0.48 % fewer
-    frames, so it stays off (benchmarks/README.md, "`far_side_bound` behind a trusted pose
-    only"). Not in the paper."""
+    frames; online (72 more, lag 3) -3.7 mm (t -3.2; side views -21 mm) with 0.12 % fewer: both
+    failed their rules' coverage clause, so it stays off (benchmarks/README.md,
+    "`far_side_bound` behind a trusted pose only"). Not in the paper."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
