@@ -93,26 +93,23 @@ def install(clock: SuiteClock) -> None:
     from posetrack import _tracker
 
     jax.monitoring.register_event_duration_secs_listener(clock.on_event)
-    original = _tracker.Tracker._refine_on
 
-    def timed(self, *args, **kwargs):
-        t0 = time.perf_counter()
-        try:
-            return original(self, *args, **kwargs)
-        finally:
-            clock.on_refine(time.perf_counter() - t0)
+    def timed(method, finished):
+        """``method`` timed into ``clock``; ``finished(self)``: a refinement ended with it."""
 
-    _tracker.Tracker._refine_on = timed
-    advance = _tracker.Tracker._advance_refinement
+        def wrapper(self, *args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return method(self, *args, **kwargs)
+            finally:
+                clock.on_refine(time.perf_counter() - t0, finished=finished(self))
 
-    def timed_part(self, *args, **kwargs):
-        t0 = time.perf_counter()
-        try:
-            return advance(self, *args, **kwargs)
-        finally:
-            clock.on_refine(time.perf_counter() - t0, finished=self._refining is None)
+        return wrapper
 
-    _tracker.Tracker._advance_refinement = timed_part
+    T = _tracker.Tracker
+    T._refine_on = timed(T._refine_on, lambda self: True)  # a whole refinement
+    # One part of a refinement spread over updates; done when none is pending any more.
+    T._advance_refinement = timed(T._advance_refinement, lambda self: self._refining is None)
 
 
 def summarise(tests: dict[str, dict]) -> dict:
