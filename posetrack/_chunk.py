@@ -122,6 +122,7 @@ def track_chunk(
             jnp.where(lost_no_step, LOST, NO_OBSERVATION),
         )
         keep = step & ~unobserved
+        new = eqx.tree_at(lambda t: t.trusted, new, ~far)  # the state carries the verdict
         st = jax.tree.map(lambda a, b: jnp.where(keep, a, b), new, st)
         lost = jnp.where(status == LOST, lost + 1, jnp.where(status == TRACKED, 0, lost))
         dropped = alive & (status == LOST) & (lost >= config.lost_patience)

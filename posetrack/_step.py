@@ -50,10 +50,12 @@ class TrackState(eqx.Module):
     key: PRNGKeyArray
     """Random key, split once per frame."""
     trusted: Bool[Array, ""] = eqx.field(default_factory=lambda: jnp.asarray(True))
-    """Whether the previous output passed the track-loss test (Delta at most
-    ``TrackerConfig.lost_delta``, landmark agreement at least ``lost_agreement``: the host's
-    test, read in the step); True for a fresh start. ``TrackerConfig.bound_trusted`` reads
-    it."""
+    """Whether the last frame with an observation passed the track-loss test (Delta at most
+    ``TrackerConfig.lost_delta``, landmark agreement at least ``lost_agreement``); True for a
+    fresh start. The step passes it on unchanged: the test that judges the frame's status
+    sets it (:class:`~posetrack.Tracker` on the host, the chunked scan on the device, one
+    meaning: ``posetrack._chunk.status_limits``), so it is that status, never a second
+    spelling of it. ``TrackerConfig.bound_trusted`` reads it."""
 
 
 class FrameEstimate(eqx.Module):
@@ -346,7 +348,7 @@ def tracker_step(
         previous=jax.vmap(lambda p: body.keypoints(shape, p))(hyps),
         best=chosen,
         key=key_next,
-        trusted=(chosen_delta <= config.lost_delta) & (agreement >= config.lost_agreement),
+        trusted=state.trusted,  # the loss test's, set by whoever judges the frame
     )
     est = FrameEstimate(
         params=chosen,

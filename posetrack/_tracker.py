@@ -1365,9 +1365,11 @@ class Tracker:
         if int(est.num_3d) < self.config.min_landmarks:
             # Too little to fit: hold the previous pose, keep the hypotheses.
             return est, NO_OBSERVATION
-        self._state = state
         cfg = self.config
-        if float(est.delta) > cfg.lost_delta or float(est.agreement) < cfg.lost_agreement:
+        lost = float(est.delta) > cfg.lost_delta or float(est.agreement) < cfg.lost_agreement
+        # The state carries the verdict (TrackState.trusted), as the chunked scan's does.
+        self._state = eqx.tree_at(lambda t: t.trusted, state, np.bool_(not lost))
+        if lost:
             self._lost_run += 1
             if self._lost_run >= self.config.lost_patience:
                 self._drop_track()

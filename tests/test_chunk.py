@@ -80,6 +80,29 @@ def test_chunked_run_is_the_per_frame_run(scene):
     assert step_chunk._cache_size() == built
 
 
+def test_the_state_carries_the_loss_tests_verdict(scene):
+    """``TrackState.trusted`` (what ``bound_trusted`` reads) is the status of the last frame
+    that had an observation, the loss test's verdict, set by the host per frame and by the
+    scan per chunk alike: never a second spelling of the test. The scene loses the track with
+    a step (frames 33-34) and then sees nothing (35)."""
+    seq, kp, conf = scene
+    tracker = pt.Tracker(seq.intrinsics, LVM, mode="per-frame")
+    verdicts, statuses = {}, {}
+    for t in range(36):
+        est, status = tracker.update(seq.depth[t], kp[t], conf[t])
+        statuses[t] = status
+        if est is not None and tracker._state is not None:
+            verdicts[t] = bool(tracker._state.trusted)
+            if status != NO_OBSERVATION:
+                assert verdicts[t] == (status == TRACKED), t
+    assert [statuses[t] for t in (32, 33, 34, 35)] == [TRACKED, LOST, LOST, NO_OBSERVATION]
+    assert verdicts[32] and not verdicts[34] and not verdicts[35]
+    for stop in (33, 36):  # the same frames in one chunked run (chunk 16): the same verdict
+        chunked = pt.Tracker(seq.intrinsics, LVM, mode="per-frame", chunk=16)
+        chunked.run(seq.depth[:stop], kp[:stop], conf[:stop], progress=None)
+        assert bool(chunked._state.trusted) == verdicts[stop - 1], stop
+
+
 def test_a_trackers_first_call_steps_one_frame(scene):
     """The first pose does not wait for a whole chunk's steps: a tracker's first call steps
     one frame, the later ones a chunk each (the poses are the per-frame run's, above)."""
