@@ -181,9 +181,9 @@ class TrackerConfig(eqx.Module):
     body drift back (tuning clips 1277, 1287: +20 and +15 mm; both unchanged at 0.75, which
     keeps the gains of 1211, 1276 and 1286; 0.87 lost 1286's). Traced."""
     bound_trusted: bool = eqx.field(default=False, static=True)
-    """Off by default. ``far_side_bound`` applies only while the previous frame's output
-    passed the track-loss test (its Delta at most ``lost_delta`` and its agreement at least
-    ``lost_agreement``; :attr:`posetrack.TrackState.trusted`). The bound trusts the previous
+    """Off by default. ``far_side_bound`` applies only while the last frame with an
+    observation passed the track-loss test (its Delta at most ``lost_delta`` and its agreement
+    at least ``lost_agreement``: the frame's status, :attr:`posetrack.TrackState.trusted`). The bound trusts the previous
     pose's facing to say which side is far; a pose that failed the test (a track coming
     apart, often turned round) bounds the near side instead and pulls the body further off
     (tuning clip 1700, CMU 131_03: +109 mm). Its screen (2026-12-06, 72 fresh tuning runs x 3
