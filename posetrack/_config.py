@@ -189,8 +189,12 @@ class TrackerConfig(eqx.Module):
     (tuning clip 1700, CMU 131_03: +109 mm). Its screen (2026-12-06, 72 fresh tuning runs x 3
     tracker seeds, offline) gained 2.9 mm (t -2.9; side views -12 mm) but answered 0.48 % fewer
     frames; online (72 more, lag 3) -3.7 mm (t -3.2; side views -21 mm) with 0.12 % fewer: both
-    failed their rules' coverage clause, so it stays off (benchmarks/README.md,
-    "`far_side_bound` behind a trusted pose only"). Not in the paper."""
+    failed their rules' coverage clause (benchmarks/README.md, "`far_side_bound` behind a
+    trusted pose only"). Under a coverage clause judged like D a third screen passed (-2.3 mm,
+    t -2.2) and the offline report stage failed by that clause's cell condition at its edge
+    (real motion, wide, occluded: coverage -0.0254 with t -1.50; D -0.6 mm overall, wide clean
+    45.6 -> 42.0), so it stays off ("`bound_trusted` under a coverage clause judged like D").
+    Not in the paper."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
