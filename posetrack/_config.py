@@ -181,20 +181,19 @@ class TrackerConfig(eqx.Module):
     body drift back (tuning clips 1277, 1287: +20 and +15 mm; both unchanged at 0.75, which
     keeps the gains of 1211, 1276 and 1286; 0.87 lost 1286's). Traced."""
     bound_trusted: bool = eqx.field(default=False, static=True)
-    """Off by default. ``far_side_bound`` applies only while the last frame with an
-    observation passed the track-loss test (its Delta at most ``lost_delta`` and its agreement
-    at least ``lost_agreement``: the frame's status, :attr:`posetrack.TrackState.trusted`). The bound trusts the previous
-    pose's facing to say which side is far; a pose that failed the test (a track coming
-    apart, often turned round) bounds the near side instead and pulls the body further off
-    (tuning clip 1700, CMU 131_03: +109 mm). Its screen (2026-12-06, 72 fresh tuning runs x 3
-    tracker seeds, offline) gained 2.9 mm (t -2.9; side views -12 mm) but answered 0.48 % fewer
-    frames; online (72 more, lag 3) -3.7 mm (t -3.2; side views -21 mm) with 0.12 % fewer: both
-    failed their rules' coverage clause (benchmarks/README.md, "`far_side_bound` behind a
-    trusted pose only"). Under a coverage clause judged like D a third screen passed (-2.3 mm,
-    t -2.2) and the offline report stage failed by that clause's cell condition at its edge
-    (real motion, wide, occluded: coverage -0.0254 with t -1.50; D -0.6 mm overall, wide clean
-    45.6 -> 42.0), so it stays off ("`bound_trusted` under a coverage clause judged like D").
-    Not in the paper."""
+    """Off by default. ``far_side_bound`` applies only while the last frame with an observation
+    passed the track-loss test (its Delta at most ``lost_delta`` and its agreement at least
+    ``lost_agreement``: the frame's status, :attr:`posetrack.TrackState.trusted`). The bound trusts
+    the previous pose's facing to say which side is far; a pose that failed the test (a track coming
+    apart, often turned round) bounds the near side instead and pulls the body further off (tuning
+    clip 1700, CMU 131_03: +109 mm). Its screen (2026-12-06, 72 fresh tuning runs x 3 tracker seeds,
+    offline) gained 2.9 mm (t -2.9; side views -12 mm) but answered 0.48 % fewer frames; online (72
+    more, lag 3) -3.7 mm (t -3.2; side views -21 mm) with 0.12 % fewer: both failed their rules'
+    coverage clause (benchmarks/README.md, "`far_side_bound` behind a trusted pose only"). Under a
+    coverage clause judged like D a third screen passed (-2.3 mm, t -2.2) and the offline report
+    stage failed by that clause's cell condition at its edge (real motion, wide, occluded: coverage
+    -0.0254 with t -1.50; D -0.6 mm overall, wide clean 45.6 -> 42.0), so it stays off
+    ("`bound_trusted` under a coverage clause judged like D"). Not in the paper."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
