@@ -35,7 +35,9 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
 ``farboundS`` (the same with ``bound_turn_sin=S``), ``farboundT`` (the bound only while the
-previous output passed the track-loss test: ``bound_trusted=True``),
+previous output passed the track-loss test: ``bound_trusted=True``), ``axesN``
+(``reinit_partial_frames=N`` with ``reinit_partial_axes=True``: a restart without a
+left/right pair from the last tracked pose's facing only),
 ``alllm-norefit`` (that and no
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN`` (that
 with ``reinit_check_tracked=N``), ``oaccX``
@@ -236,6 +238,10 @@ def settings(variant: str, mode: str = "offline") -> dict:
             return {"config": pt.TrackerConfig(far_side_bound=True, bound_turn_sin=turn)}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+    if variant.startswith("axes") and variant[4:].isdigit():
+        # axesN: reinit_partial_frames=N restarting from the last tracked pose's facing only
+        config = pt.TrackerConfig(reinit_partial_frames=int(variant[4:]), reinit_partial_axes=True)
+        return {"config": config}
     if variant.startswith("partial") or "-partial" in variant:
         # partialN: TrackerConfig(reinit_partial_frames=N); aloneM-partialN: with aloneM
         rest, _, frames = variant.rpartition("partial")
@@ -355,8 +361,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
-        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farX', 'priorS/M', "
-        "'rpriorS/M', 'girthS', 'twopassS', "
+        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'axesN', 'farX', "
+        "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
 

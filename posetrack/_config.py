@@ -340,6 +340,13 @@ class TrackerConfig(eqx.Module):
     camera was measured to do more harm than good. A person walking across a side view under
     occlusion shows no pair for seconds: on a wide tuning clip a loss waited 51 frames for one
     (benchmarks/README.md, "A restart from the lost pose"). Not in the paper."""
+    reinit_partial_axes: bool = eqx.field(default=False, static=True)
+    """With :attr:`reinit_partial_frames`: the restart without a left/right pair takes only
+    the last tracked pose's facing (its root's left and up axes) and places the limbs from
+    the frame's landmarks as any start does, instead of the whole last tracked pose (a loss
+    usually follows a drift, which that pose carries into the restart); a restart whose fit
+    turns round against that facing is refused (the next frame tries again). False (the
+    default): the whole pose. Not in the paper."""
     reinit_check_tracked: int = eqx.field(default=25, static=True)
     """> 0: a re-initialisation at most this many frames after the last frame judged tracked,
     on a frame that does not show both left/right pairs with depth (shoulders and hips), whose
@@ -464,6 +471,9 @@ class TrackerConfig(eqx.Module):
                 continue
             if isinstance(n, bool) or not isinstance(n, int) or n < 0:
                 raise ValueError(f"TrackerConfig.{name} must be an int >= 0 (frames), got {n!r}")
+        axes = self.reinit_partial_axes
+        if not isinstance(axes, bool):
+            raise ValueError(f"TrackerConfig.reinit_partial_axes must be a bool, got {axes!r}")
         margin = self.reinit_check_delta
         if margin is not None and (
             isinstance(margin, bool)

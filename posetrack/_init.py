@@ -101,7 +101,12 @@ def _unit(v: np.ndarray) -> np.ndarray | None:
 
 
 def initial_pose(
-    points3d: np.ndarray, has_depth: np.ndarray, shape: BodyShape, *, allow_partial: bool = False
+    points3d: np.ndarray,
+    has_depth: np.ndarray,
+    shape: BodyShape,
+    *,
+    allow_partial: bool = False,
+    axes: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray | None:
     """A first pose from one frame's lifted landmarks, or None if the torso is not seen.
 
@@ -118,6 +123,10 @@ def initial_pose(
         allow_partial: without a left-right pair (shoulders or hips) or a torso point, start
             from a person facing the camera placed by whatever landmarks are seen (at least 3)
             instead of giving up; for heavily occluded starts.
+        axes: the body's left and up axes (unit, camera frame) known from elsewhere (a track
+            lost a moment ago): without a left-right pair the body is oriented by them (the up
+            axis only where the hips and neck give none) and placed as with ``allow_partial``
+            (at least 3 landmarks with depth), instead of giving up or facing the camera.
 
     Returns:
         (43,) float64 parameters, or None when neither hips nor shoulders give an axis (and
@@ -138,6 +147,9 @@ def initial_pose(
         lefts.append(P[11] - P[8])
     units = [u for u in (_unit(v) for v in lefts) if u is not None]
     left = _unit(np.sum(units, axis=0)) if units else None
+    if left is None and axes is not None and F.sum() >= 3:
+        left = _unit(np.asarray(axes[0], np.float64))
+        allow_partial = True
     if left is None:
         if not allow_partial or F.sum() < 3:
             return None
@@ -146,6 +158,8 @@ def initial_pose(
         left = np.array([1.0, 0.0, 0.0])
     if hips is not None and neck is not None:
         up = neck - hips
+    elif axes is not None:
+        up = np.asarray(axes[1], np.float64)
     else:
         up = np.array([0.0, -1.0, 0.0])  # camera y is down: assume an upright person
     up = up - np.dot(up, left) * left

@@ -899,14 +899,25 @@ class Tracker:
         # The very first start may be partial (heavily occluded sequences must start somehow);
         # a re-initialisation after a loss waits for a torso, since a partial restart that
         # throws away the track's history was measured to do more harm than good (opt-in,
-        # reinit_partial_frames: a partial restart from the last tracked pose).
+        # reinit_partial_frames: a partial restart from the last tracked pose, or with
+        # reinit_partial_axes from its facing only).
+        hinted = []  # the start's left axis, where it came from the last tracked pose
+
         def start(lm):
+            hinted.clear()
             points, has_depth = np.asarray(lm.points3d), np.asarray(lm.has_depth)
             p0 = initial_pose(
                 points, has_depth, self.shape, allow_partial=not self._ever_initialized
             )
             if p0 is None and self._recently_tracked(self.config.reinit_partial_frames):
-                p0 = pose_moved_onto(*self._last_tracked_pose[1:], points, has_depth)
+                if self.config.reinit_partial_axes:
+                    # The lost track's facing only: its limbs may have drifted before the
+                    # loss; the frame places them as at any start.
+                    R = quat_to_matrix(np.asarray(self._last_tracked_pose[1][3:7], np.float64))
+                    p0 = initial_pose(points, has_depth, self.shape, axes=(R[:, 0], R[:, 1]))
+                    hinted.append(R[:, 0])
+                else:
+                    p0 = pose_moved_onto(*self._last_tracked_pose[1:], points, has_depth)
             return p0
 
         def flip_start() -> None:
@@ -955,6 +966,10 @@ class Tracker:
                     (res, kps, keys), params = fit_x, params_x
                     flip_start()
         if not np.all(np.isfinite(params)):
+            return False
+        if hinted and quat_to_matrix(params[3:7].astype(np.float64))[:, 0] @ hinted[0] < 0:
+            # A start oriented by the last tracked pose whose fit turned round on a side
+            # view's few landmarks: not one to trust; wait for a frame that orients the body.
             return False
         floor = self._fit_floor(depth_m, params)
         self._floor = device_f32(floor)

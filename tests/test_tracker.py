@@ -13,6 +13,8 @@ from conftest import quick_refine
 
 import posetrack as pt
 from posetrack import LOST, NO_OBSERVATION, TRACKED, FitSettings, TrackerConfig, _programs, _tracker
+from posetrack import _init as pt_init
+from posetrack._so3 import quat_to_matrix
 
 
 @pytest.fixture(scope="module")
@@ -326,19 +328,23 @@ def test_reinit_check_delta_keeps_the_exchange_only_within_its_margin_on_delta(s
             TrackerConfig(reinit_check_delta=bad)
 
 
+BENT = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0])  # 90 degrees about x, wxyz
+
+
 def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pair(seq):
     """After a loss, a frame that shows neither both shoulders nor both hips (the far side
     hidden, as in a side view) cannot orient a new body: by default the re-initialisation
     waits; with ``reinit_partial_frames`` it starts from the last tracked pose, moved onto the
     landmarks it sees, within that many frames of it only (never from a pose judged lost),
-    and fits the seen joints."""
+    and fits the seen joints; with ``reinit_partial_axes`` it takes that pose's facing only
+    (the limbs, a hidden one included, from the frame as at any start)."""
     far = [5, 6, 7, 11, 12, 13]  # left shoulder, elbow, wrist, hip, knee, ankle
     conf = np.array(seq.confidence[1], copy=True)
     conf[far] = 0.0
     frame = (seq.depth[1], seq.keypoints2d[1], conf)
 
-    def restart(frames: int, later: int = 0, status: int = TRACKED):
-        config = LVM.replace(reinit_partial_frames=frames)
+    def restart(frames: int, later: int = 0, status: int = TRACKED, axes: bool = False):
+        config = LVM.replace(reinit_partial_frames=frames, reinit_partial_axes=axes)
         if status == LOST:  # every frame fails the loss test
             config = config.replace(lost_delta=0.0)
         tracker = pt.Tracker(seq.intrinsics, config, mode="per-frame")
@@ -346,19 +352,31 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
         before = np.asarray(tracker.state.best)
         tracker._drop_track()  # what lost_patience lost frames in a row do
         tracker._frames_seen += later
+        # The hidden left forearm bent in the last tracked pose: where the restart takes it
+        # from (no landmark of it is seen to move it).
+        last = tracker._last_tracked_pose
+        if last is not None:
+            bent = np.array(last[1], np.float64)
+            bent[7 + 4 * 4 : 7 + 4 * 5] = BENT
+            tracker._last_tracked_pose = (last[0], bent, *last[2:])
         return tracker, before, tracker.initialize(*frame)
 
     assert not restart(0)[2]  # the default waits for a pair
     assert not restart(10, later=11)[2]  # too long after the last tracked frame
     assert not restart(10, status=LOST)[2]  # no tracked pose to start from
-    tracker, before, ok = restart(10)
-    assert ok
-    after = np.asarray(tracker.state.best)
-    assert left(before) @ left(after) > 0.9
     seen = [i for i in range(14) if i not in far]
-    fitted = np.asarray(pt.keypoints(tracker.shape, after))[seen]
-    error = np.linalg.norm(fitted - seq.joints3d[1][seen], axis=-1)
-    assert np.median(error) < 0.08, error
+    for axes in (False, True):  # the whole last tracked pose, or its facing only
+        assert not restart(10, later=11, axes=axes)[2]
+        tracker, before, ok = restart(10, axes=axes)
+        assert ok
+        after = np.asarray(tracker.state.best)
+        assert left(before) @ left(after) > 0.9
+        fitted = np.asarray(pt.keypoints(tracker.shape, after))[seen]
+        error = np.linalg.norm(fitted - seq.joints3d[1][seen], axis=-1)
+        assert np.median(error) < 0.08, error
+        # the whole pose keeps the hidden forearm's bend; the facing alone does not
+        kept = abs(float(after[7 + 16 : 7 + 20] @ BENT)) > np.cos(np.radians(10) / 2)
+        assert kept != axes
     # The start itself: a pose moved by the seen landmarks' mean offset.
     P = np.zeros((18, 3))
     P[3] = [1.0, 2.0, 3.0]
@@ -369,6 +387,31 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
     for bad in (-1, True, 2.0):
         with pytest.raises(ValueError, match="reinit_partial_frames"):
             TrackerConfig(reinit_partial_frames=bad)
+    with pytest.raises(ValueError, match="reinit_partial_axes"):
+        TrackerConfig(reinit_partial_axes=1)
+
+
+def test_initial_pose_takes_the_facing_it_is_given_without_a_left_right_pair(seq):
+    """A side view's landmarks (no left/right pair) cannot orient a body: ``initial_pose``
+    gives up, unless told the axes (a lost track's), which it then takes as they are, turned
+    either way, with the root placed from the landmarks it sees."""
+    points = np.asarray(seq.joints3d[1], np.float64)
+    has_depth = np.ones(18, bool)
+    has_depth[[5, 6, 7, 11, 12, 13]] = False  # the left side hidden
+    shape = pt_init.BodyShape.default(np.float64)
+    assert pt_init.initial_pose(points, has_depth, shape) is None
+    for sign in (1.0, -1.0):
+        left_axis = sign * np.array([0.6, 0.0, 0.8])
+        up_axis = np.array([0.0, -1.0, 0.0])
+        p0 = pt_init.initial_pose(points, has_depth, shape, axes=(left_axis, up_axis))
+        R = quat_to_matrix(p0[3:7])
+        np.testing.assert_allclose(R[:, 0], left_axis, atol=1e-9)
+        np.testing.assert_allclose(R[:, 1], up_axis, atol=1e-9)
+        # no hip pair: the root sits a torso length below the neck, along the given up axis
+        np.testing.assert_allclose(p0[:3], points[1] - float(shape.torso) * up_axis)
+    few = np.zeros(18, bool)
+    few[[2, 8]] = True  # two landmarks place nothing
+    assert pt_init.initial_pose(points, few, shape, axes=(left_axis, up_axis)) is None
 
 
 def test_exchanged_since_reads_the_torso_of_the_last_tracked_frame(seq):
