@@ -345,8 +345,9 @@ class TrackerConfig(eqx.Module):
     the last tracked pose's facing (its root's left and up axes) and places the limbs from
     the frame's landmarks as any start does, instead of the whole last tracked pose (a loss
     usually follows a drift, which that pose carries into the restart); a restart whose fit
-    turns round against that facing is refused (the next frame tries again). False (the
-    default): the whole pose. Not in the paper."""
+    turns round against that facing, or whose Delta (Eq. 3) against the frame's depth is above
+    :attr:`lost_delta`, is refused (the next frame tries again). False (the default): the
+    whole pose. Not in the paper."""
     reinit_check_tracked: int = eqx.field(default=25, static=True)
     """> 0: a re-initialisation at most this many frames after the last frame judged tracked,
     on a frame that does not show both left/right pairs with depth (shoulders and hips), whose

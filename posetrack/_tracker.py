@@ -967,9 +967,13 @@ class Tracker:
                     flip_start()
         if not np.all(np.isfinite(params)):
             return False
-        if hinted and quat_to_matrix(params[3:7].astype(np.float64))[:, 0] @ hinted[0] < 0:
+        if hinted and (
+            quat_to_matrix(params[3:7].astype(np.float64))[:, 0] @ hinted[0] < 0
+            or self._deltas(depth_m, params, params)[0] > self.config.lost_delta
+        ):
             # A start oriented by the last tracked pose whose fit turned round on a side
-            # view's few landmarks: not one to trust; wait for a frame that orients the body.
+            # view's few landmarks, or that the depth does not bear out (the loss test's
+            # Delta): not one to trust; wait for a frame that orients the body.
             return False
         floor = self._fit_floor(depth_m, params)
         self._floor = device_f32(floor)
@@ -1023,6 +1027,15 @@ class Tracker:
                 return lambda p: _faces_away(p, tracked)
         return None
 
+    def _deltas(self, depth_m, first: np.ndarray, second: np.ndarray) -> np.ndarray:
+        """Delta (Eq. 3) of two initial fits (43,) against this frame's depth, the floor as
+        the ``first`` would find it (one compiled program, ``score_fits``)."""
+        floor = device_f32(self._fit_floor(depth_m, first))
+        fits = _host_f32(np.stack([first, second]))
+        return np.asarray(
+            score_fits(self.config, self.shape, self.intrinsics, floor, depth_m, fits)
+        )
+
     def _exchange_not_worse(self, depth_m, plain: np.ndarray, exchanged: np.ndarray) -> bool:
         """Whether a facing check's exchanged fit may replace the plain one: always, unless
         ``config.reinit_check_delta`` is set; then only if its Delta (Eq. 3, against this
@@ -1031,11 +1044,7 @@ class Tracker:
         margin = self.config.reinit_check_delta
         if margin is None:
             return True
-        floor = device_f32(self._fit_floor(depth_m, plain))
-        fits = _host_f32(np.stack([plain, exchanged]))
-        delta = np.asarray(
-            score_fits(self.config, self.shape, self.intrinsics, floor, depth_m, fits)
-        )
+        delta = self._deltas(depth_m, plain, exchanged)
         frame = max(self._frames_seen - 1, 0)
         self.reinit_check_deltas += ((frame, float(delta[0]), float(delta[1])),)
         return bool(delta[1] <= delta[0] + margin)

@@ -337,13 +337,16 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
     waits; with ``reinit_partial_frames`` it starts from the last tracked pose, moved onto the
     landmarks it sees, within that many frames of it only (never from a pose judged lost),
     and fits the seen joints; with ``reinit_partial_axes`` it takes that pose's facing only
-    (the limbs, a hidden one included, from the frame as at any start)."""
+    (the limbs, a hidden one included, from the frame as at any start), and keeps the restart
+    only where its Delta passes the loss test."""
     far = [5, 6, 7, 11, 12, 13]  # left shoulder, elbow, wrist, hip, knee, ankle
     conf = np.array(seq.confidence[1], copy=True)
     conf[far] = 0.0
     frame = (seq.depth[1], seq.keypoints2d[1], conf)
 
-    def restart(frames: int, later: int = 0, status: int = TRACKED, axes: bool = False):
+    def restart(
+        frames: int, later: int = 0, status: int = TRACKED, axes: bool = False, gate=None
+    ):
         config = LVM.replace(reinit_partial_frames=frames, reinit_partial_axes=axes)
         if status == LOST:  # every frame fails the loss test
             config = config.replace(lost_delta=0.0)
@@ -359,6 +362,8 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
             bent = np.array(last[1], np.float64)
             bent[7 + 4 * 4 : 7 + 4 * 5] = BENT
             tracker._last_tracked_pose = (last[0], bent, *last[2:])
+        if gate is not None:  # the loss test's Delta threshold, from here on
+            tracker.config = tracker.config.replace(lost_delta=gate)
         return tracker, before, tracker.initialize(*frame)
 
     assert not restart(0)[2]  # the default waits for a pair
@@ -377,6 +382,9 @@ def test_reinit_partial_frames_restarts_from_the_last_tracked_pose_without_a_pai
         # the whole pose keeps the hidden forearm's bend; the facing alone does not
         kept = abs(float(after[7 + 16 : 7 + 20] @ BENT)) > np.cos(np.radians(10) / 2)
         assert kept != axes
+        # a restart from the facing alone must also score as a tracked frame would (Delta at
+        # most lost_delta); the whole pose's is judged by the next frames only
+        assert restart(10, axes=axes, gate=0.0)[2] != axes
     # The start itself: a pose moved by the seen landmarks' mean offset.
     P = np.zeros((18, 3))
     P[3] = [1.0, 2.0, 3.0]
