@@ -901,7 +901,7 @@ class Tracker:
         # throws away the track's history was measured to do more harm than good (opt-in,
         # reinit_partial_frames: a partial restart from the last tracked pose, or with
         # reinit_partial_axes from its facing only).
-        hinted = []  # the start's left axis, where it came from the last tracked pose
+        hinted = []  # non-empty where the start took the last tracked pose's facing
 
         def start(lm):
             hinted.clear()
@@ -915,7 +915,7 @@ class Tracker:
                     # loss; the frame places them as at any start.
                     R = quat_to_matrix(np.asarray(self._last_tracked_pose[1][3:7], np.float64))
                     p0 = initial_pose(points, has_depth, self.shape, axes=(R[:, 0], R[:, 1]))
-                    hinted.append(R[:, 0])
+                    hinted.append(True)
                 else:
                     p0 = pose_moved_onto(*self._last_tracked_pose[1:], points, has_depth)
             return p0
@@ -967,15 +967,16 @@ class Tracker:
                     flip_start()
         if not np.all(np.isfinite(params)):
             return False
+        floor = self._fit_floor(depth_m, params)
         if hinted and (
-            quat_to_matrix(params[3:7].astype(np.float64))[:, 0] @ hinted[0] < 0
-            or self._deltas(depth_m, params, params)[0] > self.config.lost_delta
+            _faces_away(params, self._last_tracked_pose[1])
+            or self._deltas(depth_m, params, params, floor)[0] > self.config.lost_delta
         ):
             # A start oriented by the last tracked pose whose fit turned round on a side
             # view's few landmarks, or that the depth does not bear out (the loss test's
-            # Delta): not one to trust; wait for a frame that orients the body.
+            # Delta): not one to trust; wait for a frame that orients the body. (Scored as
+            # a pair: the shape score_fits is compiled for.)
             return False
-        floor = self._fit_floor(depth_m, params)
         self._floor = device_f32(floor)
         if self._found_floor is None and floor != NO_FLOOR:
             self._found_floor = np.asarray(floor, np.float64)
@@ -1027,13 +1028,13 @@ class Tracker:
                 return lambda p: _faces_away(p, tracked)
         return None
 
-    def _deltas(self, depth_m, first: np.ndarray, second: np.ndarray) -> np.ndarray:
-        """Delta (Eq. 3) of two initial fits (43,) against this frame's depth, the floor as
-        the ``first`` would find it (one compiled program, ``score_fits``)."""
-        floor = device_f32(self._fit_floor(depth_m, first))
+    def _deltas(self, depth_m, first: np.ndarray, second: np.ndarray, floor=None) -> np.ndarray:
+        """Delta (Eq. 3) of two initial fits (43,) against this frame's depth, with ``floor``
+        (default: as the ``first`` would find it; one compiled program, ``score_fits``)."""
+        floor = self._fit_floor(depth_m, first) if floor is None else floor
         fits = _host_f32(np.stack([first, second]))
         return np.asarray(
-            score_fits(self.config, self.shape, self.intrinsics, floor, depth_m, fits)
+            score_fits(self.config, self.shape, self.intrinsics, device_f32(floor), depth_m, fits)
         )
 
     def _exchange_not_worse(self, depth_m, plain: np.ndarray, exchanged: np.ndarray) -> bool:
