@@ -35,7 +35,8 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
 ``farboundS`` (the same with ``bound_turn_sin=S``), ``farboundT`` (the bound only while the
-previous output passed the track-loss test: ``bound_trusted=True``), ``axesN``
+previous output passed the track-loss test: ``bound_trusted=True``), ``farboundT-axesN`` (that
+with ``axesN``), ``axesN``
 (``reinit_partial_frames=N`` with ``reinit_partial_axes=True``: a restart without a
 left/right pair from the last tracked pose's facing only),
 ``alllm-norefit`` (that and no
@@ -232,6 +233,15 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(far_side_bound=True)}
     if variant == "farboundT":  # the bound only behind a pose that passed the loss test
         return {"config": pt.TrackerConfig(far_side_bound=True, bound_trusted=True)}
+    if variant.startswith("farboundT-axes") and variant[14:].isdigit():
+        # farboundT-axesN: the trusted bound with the side view's restart from the facing
+        config = pt.TrackerConfig(
+            far_side_bound=True,
+            bound_trusted=True,
+            reinit_partial_frames=int(variant[14:]),
+            reinit_partial_axes=True,
+        )
+        return {"config": config}
     if variant.startswith("farbound"):  # farboundS: the bound from a turn of sine S
         try:
             turn = float(variant[len("farbound") :])
@@ -361,7 +371,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
-        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'axesN', 'farX', "
+        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
+        "'axesN', 'farX', "
         "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
     )
