@@ -287,6 +287,35 @@ def summary(runs: list[dict]) -> dict:
     }  # fmt: skip
 
 
+def _t(values: np.ndarray) -> tuple[float, float]:
+    """Mean and t (mean / standard error) of ``values``; t 0 for no change, +-inf for a
+    change without spread."""
+    mean = float(values.mean())
+    se = float(values.std(ddof=1)) / math.sqrt(len(values)) if len(values) > 1 else math.nan
+    if se and se > 0:
+        return mean, mean / se
+    return mean, 0.0 if mean == 0 else math.copysign(math.inf, mean)
+
+
+def coverage_clause(runs: list[dict]) -> dict:
+    """The coverage clause of benchmarks/README.md ("`bound_trusted` under a coverage clause
+    judged like D"): each run's change is the candidate's coverage minus the baseline's, each
+    the mean over its tracker seeds. It fails iff (a) the mean over all runs is below -0.0025
+    with t <= -2, or below -0.015 whatever its t; or (b) a group x occlusion cell's mean is
+    below -0.025 with t <= -1.5, or below -0.06 whatever its t."""
+    cells = []
+    for label, rs in _groups(runs):
+        mean, t = _t(np.array([r["candidate_cov"] - r["base_cov"] for r in rs]))
+        cells.append({"label": label, "runs": len(rs), "mean": mean, "t": t})
+    every = cells[-1]
+    fails_all = (every["mean"] < -0.0025 and every["t"] <= -2) or every["mean"] < -0.015
+    failing = [c["label"] for c in cells[:-1]
+               if (c["mean"] < -0.025 and c["t"] <= -1.5) or c["mean"] < -0.06]  # fmt: skip
+    worst = min(cells[:-1], key=lambda c: c["mean"])
+    return {"holds": not fails_all and not failing, "all": every, "worst_cell": worst,
+            "failing_cells": failing, "cells": cells}  # fmt: skip
+
+
 def table(runs: list[dict]) -> list[tuple[str, dict]]:
     """``(label, summary)`` per group and occlusion (in the runs' order), then over all."""
     return [(label, summary(rs)) for label, rs in _groups(runs)]
@@ -392,9 +421,17 @@ def main() -> int:
             f"{s['spread']:>6.1f} {s['base_accel']:>5.2f}->{s['candidate_accel']:<5.2f} "
             f"{s['base_cov']:.3f}->{s['candidate_cov']:.3f}"
         )
+    clause = coverage_clause(runs)
+    worst, failing = clause["worst_cell"], clause["failing_cells"]
+    print(
+        f"coverage clause {'holds' if clause['holds'] else 'FAILS'}: mean change over all runs "
+        f"{clause['all']['mean']:+.4f} (t {clause['all']['t']:+.2f}); worst cell "
+        f"{worst['label']} {worst['mean']:+.4f} (t {worst['t']:+.2f})"
+        + ("; failing cells: " + ", ".join(failing) if failing else "")
+    )
     if a.json:
         doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs,
-               "shared": a.shared}  # fmt: skip
+               "shared": a.shared, "coverage_clause": clause}  # fmt: skip
         doc["table"] = [{"label": label, **s} for label, s in rows]
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     return 0
