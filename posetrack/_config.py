@@ -193,7 +193,10 @@ class TrackerConfig(eqx.Module):
     coverage clause judged like D a third screen passed (-2.3 mm, t -2.2) and the offline report
     stage failed by that clause's cell condition at its edge (real motion, wide, occluded: coverage
     -0.0254 with t -1.50; D -0.6 mm overall, wide clean 45.6 -> 42.0), so it stays off
-    ("`bound_trusted` under a coverage clause judged like D"). Not in the paper."""
+    ("`bound_trusted` under a coverage clause judged like D"). With ``reinit_partial_axes``
+    closing those drops (2026-12-07, 60 fresh runs x 3 seeds, offline) coverage rose (+0.97 %)
+    but D did not move enough (-0.75 mm, t -0.66; CMU occluded +3.9): "The trusted bound with
+    the side view's restart, offline". Not in the paper."""
     bound_min_landmarks: float = 5.0
     """``far_side_bound`` applies only while at least this many landmarks keep their depth
     besides the bounded ones; with fewer (an occluder over the near side) the landmarks are
@@ -352,7 +355,9 @@ class TrackerConfig(eqx.Module):
     answer, none worse by 5 mm) and failed the online one (an occluded side view +63 mm: a
     right restart kept, on few landmarks, through a turn the loss test cannot see, where the
     default started afresh after it), so it is not the default (benchmarks/README.md, "A
-    side view's restart from the last tracked facing"). Not in the paper."""
+    side view's restart from the last tracked facing"); with ``bound_trusted`` its offline
+    screen failed too (2026-12-07: coverage +0.97 %, D -0.75 mm with t -0.66). Not in the
+    paper."""
     reinit_check_tracked: int = eqx.field(default=25, static=True)
     """> 0: a re-initialisation at most this many frames after the last frame judged tracked,
     on a frame that does not show both left/right pairs with depth (shoulders and hips), whose
