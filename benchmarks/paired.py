@@ -272,12 +272,12 @@ def summary(runs: list[dict]) -> dict:
     n = len(change)
     sd = float(change.std(ddof=1)) if n > 1 else math.nan
     se = sd / math.sqrt(n) if n > 1 else math.nan
-    mean = float(change.mean())
+    mean, t = _t(change)
     return {
         "runs": n, "base_D": float(np.mean([r["base_D"] for r in runs])),
         "candidate_D": float(np.mean([r["candidate_D"] for r in runs])),
         "change": mean, "sd": sd, "se": se,
-        "t": mean / se if se and se > 0 else (0.0 if mean == 0 else math.copysign(math.inf, mean)),
+        "t": t,
         "better": int((change < -CLEAR_MM).sum()), "worse": int((change > CLEAR_MM).sum()),
         "base_swaps": sum(r["base_swaps"] for r in runs),
         "candidate_swaps": sum(r["candidate_swaps"] for r in runs),
