@@ -311,6 +311,31 @@ def test_the_paired_change_averages_each_run_over_its_tracker_seeds(tmp_path):
     assert every["candidate_accel"] == pytest.approx((4.5 + 3.0 + 3.0) / 3)
 
 
+def test_the_coverage_clause_fails_on_a_consistent_or_a_large_loss_and_not_on_noise():
+    paired = load("paired")
+
+    def runs(changes):  # (group, occ, coverage change) per run; the baseline answers 0.95
+        return [{"group": g, "occ": o, "base_cov": 0.95, "candidate_cov": 0.95 + c}
+                for g, o, c in changes]  # fmt: skip
+
+    noise = [("wide", 0, c) for c in (-0.004, 0.003, -0.002, 0.002)]
+    assert paired.coverage_clause(runs(noise))["holds"]
+    # (a) the mean over all runs: small but consistent (t <= -2), or large whatever its t
+    consistent = [("wide", 0, c) for c in (-0.004, -0.003, -0.005, -0.004)]
+    clause = paired.coverage_clause(runs(consistent))
+    assert not clause["holds"] and clause["all"]["t"] <= -2 and clause["failing_cells"] == []
+    assert not paired.coverage_clause(runs([("wide", 0, -0.05), ("wide", 0, 0.01)]))["holds"]
+    # (b) one cell: below -0.025 with t <= -1.5, or below -0.06 whatever its t
+    cell = [("side", 2, c) for c in (-0.03, -0.035, -0.03)] + [("wide", 0, 0.01)] * 12
+    clause = paired.coverage_clause(runs(cell))
+    assert not clause["holds"] and clause["failing_cells"] == ["side, occlusion 2"]
+    assert clause["worst_cell"]["label"] == "side, occlusion 2"
+    spread = [("side", 2, c) for c in (-0.10, 0.05)] + [("wide", 0, 0.01)] * 12
+    assert paired.coverage_clause(runs(spread))["holds"]  # -0.025 mean, t -0.33: noise
+    large = [("side", 2, c) for c in (-0.15, 0.02)] + [("wide", 0, 0.01)] * 12
+    assert paired.coverage_clause(runs(large))["failing_cells"] == ["side, occlusion 2"]
+
+
 def test_the_paired_change_reads_a_missing_acceleration_as_nan():
     # records written before the acceleration error was recorded still join; their mean is nan
     paired = load("paired")
