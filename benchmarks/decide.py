@@ -68,7 +68,8 @@ the default is 25 since 2026-12-06, so ``tracked0`` is the old restart), ``cdelt
 at most the plain fit's + N/1000),
 ``confX`` (``TrackerConfig(depth_confidence=X)``),
 ``farX`` (the same on the far side's limbs in a side view only,
-``TrackerConfig(depth_confidence_far=X)``), ``sides:G+G...`` (``SideSettings(groups=(G,
+``TrackerConfig(depth_confidence_far=X)``), ``turnsX`` (the mode's ``SideSettings`` with
+``frontal_turns=X``), ``sides:G+G...`` (``SideSettings(groups=(G,
 ...))``, names from ``posetrack.SIDE_GROUPS``; a ``/with-limbs`` suffix sets
 ``torso_with_limbs``), ``priorS/M`` (the body-shape refinement,
 ``ShapeFitSettings.tracking(mode)``, with ``prior_sigma=S`` and ``max_change=M``), ``rpriorS/M``
@@ -358,6 +359,11 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"duplicates": None}
     if variant.startswith("settle") and variant[6:].isdigit():
         return {"duplicates": pt.DuplicateSettings(settle=int(variant[6:]))}
+    if variant.startswith("turns"):  # turnsX: the mode's sides, frontal_turns=X
+        try:
+            return {"sides": pt.SideSettings.for_mode(mode, frontal_turns=float(variant[5:]))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("sides:"):
         names, with_limbs = variant[6:].removesuffix("/with-limbs"), variant.endswith("/with-limbs")
         groups = tuple(names.split("+"))
@@ -374,7 +380,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
         "'axesN', 'farX', "
         "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
-        "'prepassN[r|g]' (N >= 10), 'gateX', 'sides:G+G...'"
+        "'prepassN[r|g]' (N >= 10), 'gateX', 'turnsX', 'sides:G+G...'"
     )
 
 

@@ -90,6 +90,7 @@ from ._sides import SIDE_GROUPS as SIDE_GROUPS
 from ._sides import SideLabeller as SideLabeller
 from ._sides import SideSettings as SideSettings
 from ._sides import arbitration_spans as arbitration_spans
+from ._sides import frontal_turns as frontal_turns
 from ._sides import prefer_exchanged as prefer_exchanged
 from ._sides import two_sided_exchanged as two_sided_exchanged
 from ._smooth import SmoothSettings as SmoothSettings
@@ -145,7 +146,8 @@ __all__ = [
     # the motion model
     "LIMB_NAMES", "MODES", "ONLINE_LAG", "SmoothSettings", "smooth_window",
     # the detector's left/right swaps
-    "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "prefer_exchanged",
+    "SIDE_GROUPS", "SideLabeller", "SideSettings", "arbitration_spans", "frontal_turns",
+    "prefer_exchanged",
     "two_sided_exchanged",
     # a detection that jumped onto another keypoint
     "DuplicateFilter", "DuplicateSettings",

@@ -148,6 +148,10 @@ SIDE_GROUPS: dict[str, tuple[tuple[int, int], ...]] = {
 
 _NEVER = 1e9  # the cost of a labelling that is ruled out
 
+#: :func:`frontal_turns`: the detected shoulders overlap in the image (a side view) while their
+#: distance is at most this share of the neck-to-hips distance (a frontal view: ~0.7).
+TURN_OVERLAP = 0.2
+
 
 @dataclasses.dataclass(frozen=True)
 class SideSettings:
@@ -186,6 +190,27 @@ class SideSettings:
     over the stretch is lower by more than :attr:`arbitrate_margin`; online the first
     :attr:`online_frames` frames of each exchange are (see the module docstring). False: the
     labelling is taken as read (the 2D evidence alone)."""
+    frontal_turns: float = 0.0
+    """Offline, with :attr:`arbitrate` and the "torso" group: > 0 also judges each turn through
+    a frontal (or back) view: a stretch from a side view, where the detected shoulders overlap
+    in the image (their distance at most :data:`TURN_OVERLAP` of the neck-to-hips distance),
+    through frames where they stand at least this ratio apart, to the next overlap or the
+    recording's end (:func:`frontal_turns`). The turn is tracked as labelled (its stretches
+    read exchanged judged as usual), then again from the same state with every labelling
+    mirrored (each group and the face exchanged against its reading: the detector's whole-body
+    swap undone), and the mirrored tracking is kept where its Delta summed is lower by
+    :attr:`turn_margin` a frame (:attr:`Tracker.turn_spans`). A whole-body swap that starts and
+    ends while the shoulders overlap shows no jump to either 2D pass, and the track turns round
+    with the swapped labels (benchmarks/README.md, "Does Delta tell a turned track?": every
+    long wrong-facing stretch there started so). 0: off (the default; a look on 48 used tuning
+    runs, not yet a screen: benchmarks/README.md). Not in the paper."""
+    turn_margin: float = 0.01
+    """With :attr:`frontal_turns`: how much lower, per frame both trackings estimate, the
+    mirrored tracking's Delta must be to be kept (a turn's two readings tie where the body
+    is seen from the side, and a tie kept mirrored turns the track round for the rest of the
+    turn; in a look at 48 wide walk_across tuning runs, the mirrorings that helped led by
+    0.012-0.1 a frame, the two that did harm by 0.002 and 0.007: read off those runs, not
+    yet screened)."""
     arbitrate_groups: bool = False
     """Offline, with :attr:`arbitrate`: where more than one group was read exchanged in a
     stretch, each of those groups' exchange is also tracked alone (the others as detected),
@@ -306,11 +331,16 @@ class SideSettings:
                 )
         names = ("switch_cost", "cap", "speed", "min_confidence", "two_sided_margin")
         for name in (*names, "arbitrate_margin", "online_anchor", "online_model",
-                     "online_model_margin"):  # fmt: skip
+                     "online_model_margin", "frontal_turns", "turn_margin"):  # fmt: skip
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ValueError(f"SideSettings: {name} must be a finite number, got {v!r}")
-        for name in ("online_anchor", "online_model", "online_model_margin"):
+        if self.frontal_turns != 0 and not TURN_OVERLAP < self.frontal_turns <= 2:
+            raise ValueError(
+                f"SideSettings: frontal_turns must be 0 (off) or in ({TURN_OVERLAP}, 2], got "
+                f"{self.frontal_turns!r}"
+            )
+        for name in ("online_anchor", "online_model", "online_model_margin", "turn_margin"):
             if getattr(self, name) < 0:
                 raise ValueError(
                     f"SideSettings: {name} must be >= 0 (m), got {getattr(self, name)!r}"
@@ -540,6 +570,61 @@ def two_sided_exchanged(
         limbs = [i for i, name in enumerate(settings.groups) if name in ("arms", "legs")]
         exchanged[:, g] &= exchanged[:, limbs].any(axis=1)
     return exchanged
+
+
+def frontal_turns(
+    frames: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None],
+    apart: float,
+    min_confidence: float = 0.1,
+) -> list[tuple[int, int]]:
+    """The turns through a frontal (or back) view of a recording, from its 2D detections.
+
+    Per frame, the detected shoulders' image distance over the distance from the neck to the
+    hips' midpoint (either hip where one is missed); frames without both shoulders, the neck
+    and a hip keep the last ratio. A turn runs from the last frame whose ratio is at most
+    :data:`TURN_OVERLAP` (the shoulders overlap: a side view) before the ratio reaches
+    ``apart``, to the next frame at most :data:`TURN_OVERLAP` (exclusive) or the end. A
+    recording that starts apart has no turn there (no side view before it).
+
+    Args:
+        frames: as :func:`two_sided_exchanged` takes them (``None``: nobody followed).
+        apart: the ratio a frontal view reaches.
+        min_confidence: keypoints at or below it are missed.
+
+    Returns:
+        ``[(start, stop), ...]``, increasing, ``stop`` exclusive.
+    """
+    ratio = np.full(len(frames), np.nan)
+    for t, f in enumerate(frames):
+        if f is None:
+            continue
+        kp, conf = np.asarray(f[0], np.float64), np.asarray(f[1], np.float64)
+        seen = conf > min_confidence
+        hips = [h for h in (8, 11) if seen[h]]
+        if not (seen[1] and seen[2] and seen[5] and hips):
+            continue
+        torso = np.linalg.norm(kp[1] - kp[hips].mean(axis=0))
+        if torso > 1e-6:
+            ratio[t] = np.linalg.norm(kp[5] - kp[2]) / torso
+    turns: list[tuple[int, int]] = []
+    side = None  # the last frame read as a side view
+    start = None
+    last = np.nan
+    for t, r in enumerate(ratio):
+        r = last if np.isnan(r) else r
+        last = r
+        if np.isnan(r):
+            continue
+        if r <= TURN_OVERLAP:
+            if start is not None:
+                turns.append((start, t))
+                start = None
+            side = t
+        elif r >= apart and start is None and side is not None:
+            start, side = side, None
+    if start is not None:
+        turns.append((start, len(frames)))
+    return turns
 
 
 def arbitration_spans(exchanged: np.ndarray, after: int) -> list[tuple[int, int]]:

@@ -66,6 +66,7 @@ from ._sides import (
     SideLabeller,
     SideSettings,
     arbitration_spans,
+    frontal_turns,
     prefer_exchanged,
     two_sided_exchanged,
 )
@@ -261,6 +262,28 @@ class _Prepared:
     host: tuple
     """The host's state after preparing the frame: (follower reference, frames since it was
     updated, labeller, duplicate filter, frames seen); restored if the track is dropped here."""
+
+
+#: The face's left/right pairs exchanged (eyes 14/15, ears 16/17): an index over 18 keypoints.
+_FACE_FLIP = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 15, 14, 17, 16])
+
+
+def _turns_around(turns: list[tuple[int, int]], spans: dict) -> list[tuple[int, int]]:
+    """The turns (``[(start, stop), ...]``) widened so that no arbitrated stretch of ``spans``
+    (start -> stop) straddles their ends (a stretch is judged inside one tracking of the
+    turn, whole), merged where they then overlap."""
+    out: list[tuple[int, int]] = []
+    for start, stop in turns:
+        for a, b in spans.items():
+            if a < start < b:
+                start = a
+            if a < stop < b:
+                stop = b
+        if out and start < out[-1][1]:
+            out[-1] = (out[-1][0], max(stop, out[-1][1]))
+        else:
+            out.append((start, stop))
+    return out
 
 
 def _body_flipped(lm: Landmarks) -> Landmarks:
@@ -526,6 +549,10 @@ class Tracker:
         summed as detected, Delta summed exchanged, exchange kept)``: after an offline
         :meth:`run`, the stretches the two-sided labelling read exchanged; online, the first
         frames of each exchange the forward pass read (since the last :meth:`run`)."""
+        self.turn_spans: list[tuple[int, int, float, float, bool]] = []
+        """With :attr:`SideSettings.frontal_turns`, after an offline :meth:`run`: per turn
+        through a frontal view tracked both ways ``(start, stop, Delta summed as labelled,
+        Delta summed mirrored, mirrored kept)``."""
         self.side_span_groups: list[np.ndarray] = []
         """Per entry of :attr:`side_spans`, ``bool (groups,)``: which :attr:`sides` groups the
         stretch judged (online, the groups newly read exchanged; offline, those the two-sided
@@ -606,6 +633,9 @@ class Tracker:
         # the groups whose two-sided reading applies (all False: the labels as detected; one
         # group: SideSettings.arbitrate_groups); None: every group.
         self._exchange_mask: np.ndarray | None = None
+        # Offline with SideSettings.frontal_turns: while a turn is tracked the other way, every
+        # labelling is mirrored (each group and the face exchanged against its reading).
+        self._mirrored = False
         # Online with arbitration: the groups the depth kept as detected (until the labeller
         # reads them as detected again), the groups this frame newly exchanged (or held
         # exchanged past online_rejudge frames since they were judged), and the stretch being
@@ -809,6 +839,8 @@ class Tracker:
             if self._two_sided is not None and self._run_frame is not None:
                 self.exchanged = self._offline_exchanged(p, self.exchanged)
                 kp, conf = self._labeller.relabel(*raw, self.exchanged)
+                if self._mirrored:  # the whole body: the face too (not a relabelled group)
+                    kp, conf = kp[_FACE_FLIP], conf[_FACE_FLIP]
             elif self._arbitrates_online:
                 self._veto &= self.exchanged  # a veto ends with the exchange it vetoed
                 self.exchanged = self.exchanged & ~self._veto
@@ -847,8 +879,10 @@ class Tracker:
         persons, exchanged = self._two_sided
         if persons[self._run_frame] == p:
             row = exchanged[self._run_frame]
-            return row if self._exchange_mask is None else row & self._exchange_mask
-        return np.zeros_like(forward) if self.sides.arbitrate else forward
+            row = row if self._exchange_mask is None else row & self._exchange_mask
+        else:
+            row = np.zeros_like(forward) if self.sides.arbitrate else forward
+        return ~row if self._mirrored else row
 
     @property
     def duplicates_dropped(self) -> int:
@@ -1468,25 +1502,28 @@ class Tracker:
         n_keep = 0 if self.refine is None or self.mode != "offline" else min(self.refine.frames, T)
         kept: dict[int, tuple[int, int, np.ndarray]] = {}  # stretch -> (3D landmarks, t, depth)
         spans: dict[int, int] = {}
+        turns: list[tuple[int, int]] = []  # SideSettings.frontal_turns
         self.side_spans, self.side_span_groups, self._judged_rows = [], [], None
+        self.turn_spans = []
         self.reinit_flip_frames, self.reinit_check_deltas = (), ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
-            self._two_sided = self._two_sided_labels(depths, keypoints2d, confidence)
+            persons, exchanged, turns = self._two_sided_labels(depths, keypoints2d, confidence)
+            self._two_sided = (persons, exchanged)
             self.sides_s = time.perf_counter() - t0
             if self.sides.arbitrate:
                 spans = dict(arbitration_spans(self._two_sided[1], self.sides.arbitrate_after))
+            turns = _turns_around(turns, spans) if self.sides.arbitrate else []
         frames = partial(self._run_frames_into, out, kept, n_keep, depths, keypoints2d, confidence)
         try:
             t = 0
-            for start in sorted(spans):
-                if start < t:  # inside a stretch already tracked
-                    continue
-                frames(progress, t, start)
-                t = self._arbitrate_span(start, spans[start], out, kept, frames, progress)
-            frames(progress, t, T)
+            for start, stop in turns:
+                t = self._run_spans(t, start, spans, out, kept, frames, progress)
+                t = self._arbitrate_turn(start, stop, spans, out, kept, frames, progress)
+            self._run_spans(t, T, spans, out, kept, frames, progress)
         finally:
             self._two_sided, self._run_frame, self._exchange_mask = None, None, None
+            self._mirrored = False
         back = None
         if both_ways:
             back = self._track_backwards(out, depths, keypoints2d, confidence, G, progress_back)
@@ -1813,6 +1850,53 @@ class Tracker:
         out.delta[t] = float(est.delta)
         out.conf[t] = keypoint_confidence(est) * (0.5 if st == LOST else 1.0)
 
+    def _run_spans(
+        self, t: int, stop: int, spans: dict, out: _RunOutputs, kept: dict, frames, progress
+    ) -> int:
+        """Track frames ``[t, stop)``, each arbitrated stretch of ``spans`` (start -> stop)
+        that starts there by :meth:`_arbitrate_span`. Returns ``stop``."""
+        for start in sorted(spans):
+            if start < t or start >= stop:  # inside a stretch already tracked, or beyond
+                continue
+            frames(progress, t, start)
+            t = self._arbitrate_span(start, spans[start], out, kept, frames, progress)
+        frames(progress, t, stop)
+        return stop
+
+    def _arbitrate_turn(
+        self, start: int, stop: int, spans: dict, out: _RunOutputs, kept: dict, frames, progress
+    ) -> int:
+        """:attr:`SideSettings.frontal_turns`: track the turn ``[start, stop)`` as labelled
+        (its arbitrated stretches judged as usual), then again from the same state with every
+        labelling mirrored (the detector's whole-body swap undone), and keep the mirrored
+        tracking where its poses' Delta summed is lower by :attr:`SideSettings.turn_margin` a
+        frame (:func:`prefer_exchanged`). Returns ``stop``."""
+        before = self._point(start, stop, out, kept)
+        # The records of the stretches and re-initialisations inside: the kept reading's.
+        n, checks = len(self.side_spans), self.reinit_check_deltas
+        self._run_spans(start, stop, spans, out, kept, frames, None)
+        delta_as = out.delta[start:stop].copy()
+        labelled = self._point(start, stop, out, kept)
+        records = self.side_spans[n:], self.side_span_groups[n:], self.reinit_check_deltas
+        del self.side_spans[n:], self.side_span_groups[n:]
+        self.reinit_check_deltas = checks
+        self._back_to(before, start, out, kept)
+        self._mirrored = True
+        try:
+            self._run_spans(start, stop, spans, out, kept, frames, progress)
+        finally:
+            self._mirrored = False
+        delta_mirrored = out.delta[start:stop].copy()
+        shared = int(np.sum(np.isfinite(delta_as) & np.isfinite(delta_mirrored)))
+        chosen = prefer_exchanged(delta_as, delta_mirrored, self.sides.turn_margin * shared)
+        self.turn_spans.append(
+            (start, stop, float(np.nansum(delta_as)), float(np.nansum(delta_mirrored)), chosen)
+        )
+        if not chosen:
+            self._back_to(labelled, start, out, kept)
+            self.side_spans[n:], self.side_span_groups[n:], self.reinit_check_deltas = records
+        return stop
+
     def _arbitrate_span(
         self, start: int, stop: int, out: _RunOutputs, kept: dict, frames, progress
     ) -> int:
@@ -2069,10 +2153,12 @@ class Tracker:
             confs.append(conf)
         return ds, kps, confs
 
-    def _two_sided_labels(self, depths, keypoints2d, confidence) -> tuple[np.ndarray, np.ndarray]:
+    def _two_sided_labels(self, depths, keypoints2d, confidence) -> tuple:
         """Offline left/right labelling (:func:`two_sided_exchanged`) over the whole recording:
-        ``(person (T,), exchanged (T, groups))``, the person as a pre-pass follows them. A frame
-        where the tracker follows another detection falls back to the forward pass."""
+        ``(person (T,), exchanged (T, groups), turns)``, the person as a pre-pass follows them
+        (a frame where the tracker follows another detection falls back to the forward pass),
+        ``turns`` the followed person's turns through a frontal view (:func:`frontal_turns`,
+        with :attr:`SideSettings.frontal_turns`; else none)."""
         persons, frames = [], []
         # The pass reads what the tracking pass will fit: with ``duplicates``, a detection
         # that jumped onto another keypoint is withheld here too (its own causal filter).
@@ -2087,7 +2173,10 @@ class Tracker:
                 conf, _ = dups.update(kp, conf, cands.points3d[p], cands.has_depth[p])
             frames.append((kp, conf, cands.points3d[p], cands.has_depth[p]))
         exchanged = two_sided_exchanged(frames, float(self.intrinsics.fx), self.sides)
-        return np.asarray(persons, np.int64), exchanged
+        turns = []
+        if self.sides.frontal_turns > 0 and "torso" in self.sides.groups:
+            turns = frontal_turns(frames, self.sides.frontal_turns, self.sides.min_confidence)
+        return np.asarray(persons, np.int64), exchanged, turns
 
     def _followed(self, depths, keypoints2d, confidence, n: int):
         """Yield ``(depth metres, candidates, followed index or -1)`` for the first ``n``

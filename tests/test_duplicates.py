@@ -166,7 +166,7 @@ def test_the_offline_left_right_pre_pass_reads_what_the_tracking_pass_fits(monke
 
     monkeypatch.setattr(tracker_module, "two_sided_exchanged", spy)
     t = pt.Tracker(intr, mode="offline", duplicates=dup)
-    persons, exchanged = t._two_sided_labels(depth, kp, conf)
+    persons, exchanged, _ = t._two_sided_labels(depth, kp, conf)
     assert (persons == 0).all() and exchanged.shape == (30, len(t.sides.groups))
     withheld = seen["conf"] == 0
     if dup is None:

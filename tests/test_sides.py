@@ -302,6 +302,52 @@ def test_arbitration_spans_cover_each_exchange_and_the_frames_after_it():
     assert pt.arbitration_spans(np.zeros((7, 2), bool), 5) == []
 
 
+def _turning(ratios, torso: float = 60.0):
+    """Frames of a person whose shoulders stand ``ratio`` x ``torso`` pixels apart (the
+    neck-to-hips distance ``torso``); a NaN ratio: the shoulders not detected."""
+    frames = []
+    for r in ratios:
+        kp, conf = np.zeros((18, 2)), np.full(18, 0.8)
+        kp[1] = (160.0, 100.0)
+        kp[8], kp[11] = (150.0, 100.0 + torso), (170.0, 100.0 + torso)
+        half = 0.0 if np.isnan(r) else r * torso / 2
+        kp[2], kp[5] = (160.0 - half, 100.0), (160.0 + half, 100.0)
+        if np.isnan(r):
+            conf[[2, 5]] = 0.0
+        frames.append((kp, conf, np.zeros((18, 3)), np.zeros(18, bool)))
+    return frames
+
+
+def test_frontal_turns_run_from_a_side_view_through_a_frontal_one_to_the_next_side_view():
+    nan = float("nan")
+    # Side view 0-3, turning 4-5, frontal 6-9 (one frame unseen), side view 10-12, then a
+    # turn that lasts to the end.
+    ratios = [0.05, 0.1, 0.0, 0.15, 0.3, 0.4, 0.6, 0.7, nan, 0.7, 0.1, 0.05, 0.1, 0.3, 0.6, 0.7]
+    assert pt.frontal_turns(_turning(ratios), 0.5) == [(3, 10), (12, 16)]
+    # Never as far apart as asked: no turn; frontal from the start: none before a side view.
+    assert pt.frontal_turns(_turning(ratios), 0.8) == []
+    assert pt.frontal_turns(_turning([0.7, 0.7, 0.1, 0.1, 0.7]), 0.5) == [(3, 5)]
+    # Frames without the person keep the last ratio, like unseen shoulders.
+    frames = _turning([0.1, 0.6, 0.6, 0.1])
+    frames[2] = None
+    assert pt.frontal_turns(frames, 0.5) == [(0, 3)]
+    with pytest.raises(ValueError, match="frontal_turns"):
+        pt.SideSettings(frontal_turns=0.1)  # not above the overlap's ratio
+    with pytest.raises(ValueError, match="frontal_turns"):
+        pt.SideSettings(frontal_turns=float("inf"))
+
+
+def test_a_turn_takes_in_the_arbitrated_stretches_across_its_ends():
+    from posetrack._tracker import _turns_around
+
+    spans = {2: 6, 20: 26, 40: 44}
+    # 5 and 22 fall inside stretches: the turn widens to take them whole; 40-44 is inside.
+    assert _turns_around([(5, 22), (38, 50)], spans) == [(2, 26), (38, 50)]
+    # turns that overlap once widened are one
+    assert _turns_around([(3, 10), (12, 21)], {2: 6, 9: 14, 20: 26}) == [(2, 26)]
+    assert _turns_around([(10, 15)], spans) == [(10, 15)]
+
+
 def test_prefer_exchanged_needs_a_lower_delta_on_the_same_frames():
     a = np.array([0.30, 0.40, np.nan, 0.35])
     assert pt.prefer_exchanged(a, a - 0.05, 0.0)

@@ -862,7 +862,7 @@ def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, mon
     def misread(self, depths, keypoints2d, confidence):
         wrong = np.zeros((T, len(self.sides.groups)), bool)  # one column per group
         wrong[10:20, 0] = True
-        return np.zeros(T, np.int64), wrong
+        return np.zeros(T, np.int64), wrong, []
 
     monkeypatch.setattr(pt.Tracker, "_two_sided_labels", misread)
     args = (clip.depth, clip.keypoints2d, clip.confidence, clip.intrinsics)
@@ -881,6 +881,54 @@ def test_the_depth_refuses_an_exchange_the_2d_reading_got_wrong(clip, modes, mon
     )
 
 
+def test_a_turn_is_kept_mirrored_only_where_the_depth_prefers_it(clip, monkeypatch):
+    """``SideSettings.frontal_turns``: a turn's frames are tracked as labelled and again with
+    every labelling mirrored (each group and the face exchanged), from the same state, and
+    the lower Delta summed keeps its tracking. The detector swaps the whole body in frames
+    12-27 (the person read as facing away) and the pre-pass reads nothing exchanged, as in a
+    swap that starts and ends in a side view: the mirrored tracking is kept and undoes it.
+    Without the swap the labelled tracking is kept, bit for bit the run without turns."""
+    T = len(clip.depth)
+    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
+    sw = np.arange(12, 28)
+    for a, b in ((2, 5), (3, 6), (4, 7), (8, 11), (9, 12), (10, 13), (14, 15), (16, 17)):
+        kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
+        conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
+    found: list = []
+
+    def reading(self, depths, keypoints2d, confidence):
+        return np.zeros(T, np.int64), np.zeros((T, len(self.sides.groups)), bool), found
+
+    monkeypatch.setattr(pt.Tracker, "_two_sided_labels", reading)
+    sides = pt.SideSettings.for_mode("offline", frontal_turns=0.5)
+    runs = {}
+    for swapped, turns in ((True, [(12, 28)]), (True, []), (False, [(12, 28)]), (False, [])):
+        found[:] = turns
+        tr = pt.Tracker(clip.intrinsics, refine=None, sides=sides)
+        runs[swapped, bool(turns)] = tr.run(clip.depth, *((kp, conf) if swapped else
+                                                         (clip.keypoints2d, clip.confidence)))
+        assert [s[:2] for s in tr.turn_spans] == turns
+        if turns:
+            assert tr.turn_spans[0][4] == swapped, tr.turn_spans
+    gt = clip.joints3d
+    mirrored, labelled = runs[True, True], runs[True, False]
+    assert mirrored.exchanged[sw].all() and not mirrored.exchanged[:12].any()
+    assert pt.accuracy(mirrored.keypoints3d, gt).mean_mm < pt.accuracy(
+        labelled.keypoints3d, gt).mean_mm - 5.0
+    assert pt.swapped_limb_frames(mirrored.keypoints3d, gt) <= pt.swapped_limb_frames(
+        labelled.keypoints3d, gt)
+    kept, plain = runs[False, True], runs[False, False]
+    np.testing.assert_array_equal(kept.keypoints3d, plain.keypoints3d)
+    assert not kept.exchanged.any()
+    # A mirrored tracking must lead by turn_margin a frame: by 1.0 (more than Delta's range)
+    # never, and the labelled tracking stays, bit for bit.
+    found[:] = [(12, 28)]
+    strict = dataclasses.replace(sides, turn_margin=1.0)
+    tr = pt.Tracker(clip.intrinsics, refine=None, sides=strict)
+    np.testing.assert_array_equal(tr.run(clip.depth, kp, conf).keypoints3d, labelled.keypoints3d)
+    assert not tr.turn_spans[0][4]
+
+
 def test_each_groups_exchange_is_judged_on_its_own_with_arbitrate_groups(clip, monkeypatch):
     """The detector swaps the arms in frames 12-27; the pre-pass reads the arms right and the
     legs wrongly exchanged there. Decided together, the legs' misreading rides along with the
@@ -896,7 +944,7 @@ def test_each_groups_exchange_is_judged_on_its_own_with_arbitrate_groups(clip, m
     def reading(self, depths, keypoints2d, confidence):
         r = np.zeros((T, len(self.sides.groups)), bool)
         r[12:28, :2] = True  # arms (right) and legs (wrong)
-        return np.zeros(T, np.int64), r
+        return np.zeros(T, np.int64), r, []
 
     monkeypatch.setattr(pt.Tracker, "_two_sided_labels", reading)
     gt, out = clip.joints3d, {}
