@@ -27,6 +27,7 @@ import json
 import jax
 import numpy as np
 from decide import generate_clip, settings
+from flip_delta import left_axis
 from parts import add_part_arguments, check_part, share
 from seeds import parse_seeds
 
@@ -39,15 +40,9 @@ MARGINS = (0.0, -0.005, -0.01, -0.02, -0.03)
 ROWS_OF_K = (1, 2, 3, 5)
 
 
-def _truth_left(joints: np.ndarray) -> np.ndarray:
-    """(18, 3) -> the body's unit left axis in the camera's x-z plane (shoulders and hips)."""
-    d = ((joints[5] - joints[2]) + (joints[11] - joints[8]))[[0, 2]]
-    return d / np.linalg.norm(d)
-
-
 def _facing(params: np.ndarray, truth_left: np.ndarray) -> float:
-    """Cosine between a pose's root left axis (x-z plane) and the truth's."""
-    v = quat_to_matrix(np.asarray(params[3:7], np.float64))[[0, 2], 0]
+    """Cosine between a pose's root left axis (x-z plane) and the truth's (:func:`left_axis`)."""
+    v = quat_to_matrix(np.asarray(params[3:7], np.float64))[:, 0] * np.array([1.0, 0, 1])
     return float(v @ truth_left / max(np.linalg.norm(v), 1e-9))
 
 
@@ -98,7 +93,7 @@ def track_run(seed: int, occ: int, mode: str) -> list[dict]:
         plain, exch = fit(p0, lm), fit(p0_x, lm_x)
         fits = tr._deltas(depth, plain, exch, floor)
         own = tr._deltas(depth, params, exch, floor)
-        truth = _truth_left(seq.joints3d[t])
+        truth = left_axis(seq.joints3d[t])
         has_d = np.asarray(lm.has_depth)
         rows.append(dict(
             t=t, track=_facing(params, truth), plain=_facing(plain, truth),

@@ -63,6 +63,7 @@ from ._shapefit import (
     refine_shape,
 )
 from ._sides import (
+    SIDE_GROUPS,
     SideLabeller,
     SideSettings,
     arbitration_spans,
@@ -264,8 +265,8 @@ class _Prepared:
     updated, labeller, duplicate filter, frames seen); restored if the track is dropped here."""
 
 
-#: The face's left/right pairs exchanged (eyes 14/15, ears 16/17): an index over 18 keypoints.
-_FACE_FLIP = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 15, 14, 17, 16])
+#: The face's left/right pairs (eyes, ears) exchanged: an index over 18 keypoints.
+_FACE_FLIP = body.flip_labels(np.ravel(SIDE_GROUPS["face"]))
 
 
 def _turns_around(turns: list[tuple[int, int]], spans: dict) -> list[tuple[int, int]]:
