@@ -202,15 +202,17 @@ class SideSettings:
     :attr:`turn_margin` a frame (:attr:`Tracker.turn_spans`). A whole-body swap that starts and
     ends while the shoulders overlap shows no jump to either 2D pass, and the track turns round
     with the swapped labels (benchmarks/README.md, "Does Delta tell a turned track?": every
-    long wrong-facing stretch there started so). 0: off (the default; a look on 48 used tuning
-    runs, not yet a screen: benchmarks/README.md). Not in the paper."""
+    long wrong-facing stretch there started so). 0: off (the default: 0.45 helped on 48 used
+    tuning runs but failed its screen on 76 fresh ones, none better, two worse by 7-44 mm,
+    with a quarter of the frames tracked twice: benchmarks/README.md). Not in the paper."""
     turn_margin: float = 0.01
     """With :attr:`frontal_turns`: how much lower, per frame both trackings estimate, the
     mirrored tracking's Delta must be to be kept (a turn's two readings tie where the body
     is seen from the side, and a tie kept mirrored turns the track round for the rest of the
     turn; in a look at 48 wide walk_across tuning runs, the mirrorings that helped led by
-    0.012-0.1 a frame, the two that did harm by 0.002 and 0.007: read off those runs, not
-    yet screened)."""
+    0.012-0.1 a frame, the two that did harm by 0.002 and 0.007: read off those runs; on the
+    screen's fresh runs a harmful mirroring led by 0.025 and 0.029 a frame, so no margin
+    separates them)."""
     arbitrate_groups: bool = False
     """Offline, with :attr:`arbitrate`: where more than one group was read exchanged in a
     stretch, each of those groups' exchange is also tracked alone (the others as detected),
