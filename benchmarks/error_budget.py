@@ -90,11 +90,8 @@ def detections(seq) -> dict:
     kp, conf = np.asarray(seq.keypoints2d, np.float64), np.asarray(seq.confidence, np.float64)
     if kp.ndim == 4:  # (T, people, 18, 2): the tracked person is the first
         kp, conf = kp[:, 0], conf[:, 0]
-    K = seq.intrinsics
-    px = np.stack(
-        [K.fx * gt[..., 0] / gt[..., 2] + K.cx, K.fy * gt[..., 1] / gt[..., 2] + K.cy], -1
-    )
-    mm = np.linalg.norm(kp - px, axis=-1) * gt[..., 2] / float(K.fx) * 1000.0
+    px = np.asarray(pt.project(seq.intrinsics, gt), np.float64)
+    mm = np.linalg.norm(kp - px, axis=-1) * gt[..., 2] / float(seq.intrinsics.fx) * 1000.0
     la = left_axis(gt)
     yaw = np.degrees(np.arccos(np.clip(la[:, 0], -1.0, 1.0)))
     side = (yaw > SIDE[0]) & (yaw < SIDE[1])

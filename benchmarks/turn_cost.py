@@ -4,8 +4,8 @@ The offline turn judgement (``SideSettings(frontal_turns=X)``) tracks every turn
 as labelled and mirrored. Which frames it finds depends only on the detections (the person
 followed, the two-sided reading's arbitrated stretches, the detected shoulders' spread), not on
 any fit, so this script reads them without tracking: the same calls ``Tracker.run`` makes before
-its first fit (``Tracker._two_sided_labels``, :func:`posetrack.arbitration_spans`, the turns
-widened around the stretches). It prints, per group and occlusion, the turns found and the
+its first fit (``Tracker._offline_plan``: the two-sided labelling, the arbitrated stretches,
+the turns widened around them). It prints, per group and occlusion, the turns found and the
 share of frames tracked twice, and with ``--check`` also tracks the first clip with a turn and
 checks the count against :attr:`Tracker.turn_spans` (the frames actually tracked twice).
 Decision clips of ``decide.py`` (tuning seeds).
@@ -24,17 +24,13 @@ from decide import clips, generate_clip
 from seeds import parse_seeds
 
 import posetrack as pt
-from posetrack._tracker import _turns_around
 
 
 def turns_of(seq: pt.synth.SyntheticSequence, sides: pt.SideSettings) -> list[tuple[int, int]]:
     """The stretches ``[(start, stop), ...]`` an offline tracker with ``sides`` tracks twice on
-    ``seq`` (as ``Tracker.run`` finds them, before any fit)."""
+    ``seq`` (``Tracker.run``'s own plan, before any fit)."""
     tr = pt.Tracker(seq.intrinsics, mode="offline", sides=sides)
-    _, exchanged, turns = tr._two_sided_labels(seq.depth, seq.keypoints2d, seq.confidence)
-    if not sides.arbitrate:
-        return []
-    return _turns_around(turns, dict(pt.arbitration_spans(exchanged, sides.arbitrate_after)))
+    return tr._offline_plan(seq.depth, seq.keypoints2d, seq.confidence)[3]
 
 
 def main() -> int:

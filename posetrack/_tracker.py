@@ -1509,12 +1509,9 @@ class Tracker:
         self.reinit_flip_frames, self.reinit_check_deltas = (), ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
-            persons, exchanged, turns = self._two_sided_labels(depths, keypoints2d, confidence)
+            persons, exchanged, spans, turns = self._offline_plan(depths, keypoints2d, confidence)
             self._two_sided = (persons, exchanged)
             self.sides_s = time.perf_counter() - t0
-            if self.sides.arbitrate:
-                spans = dict(arbitration_spans(self._two_sided[1], self.sides.arbitrate_after))
-            turns = _turns_around(turns, spans) if self.sides.arbitrate else []
         frames = partial(self._run_frames_into, out, kept, n_keep, depths, keypoints2d, confidence)
         try:
             t = 0
@@ -2153,6 +2150,19 @@ class Tracker:
             kps.append(kp)
             confs.append(conf)
         return ds, kps, confs
+
+    def _offline_plan(self, depths, keypoints2d, confidence) -> tuple:
+        """What an offline :meth:`run` with :attr:`sides` decides before its first fit, from the
+        detections alone: ``(person (T,), exchanged (T, groups), spans, turns)``, the two-sided
+        labelling (:meth:`_two_sided_labels`), the stretches the depth arbitrates (start ->
+        stop; none without :attr:`SideSettings.arbitrate`) and the turns tracked both ways
+        (``[(start, stop), ...]``, widened around the stretches; :attr:`turn_spans` records
+        their judgements)."""
+        persons, exchanged, turns = self._two_sided_labels(depths, keypoints2d, confidence)
+        if not self.sides.arbitrate:
+            return persons, exchanged, {}, []
+        spans = dict(arbitration_spans(exchanged, self.sides.arbitrate_after))
+        return persons, exchanged, spans, _turns_around(turns, spans)
 
     def _two_sided_labels(self, depths, keypoints2d, confidence) -> tuple:
         """Offline left/right labelling (:func:`two_sided_exchanged`) over the whole recording:

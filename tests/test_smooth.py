@@ -891,9 +891,8 @@ def test_a_turn_is_kept_mirrored_only_where_the_depth_prefers_it(clip, monkeypat
     T = len(clip.depth)
     kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
     sw = np.arange(12, 28)
-    for a, b in ((2, 5), (3, 6), (4, 7), (8, 11), (9, 12), (10, 13), (14, 15), (16, 17)):
-        kp[sw, a], kp[sw, b] = clip.keypoints2d[sw, b], clip.keypoints2d[sw, a]
-        conf[sw, a], conf[sw, b] = clip.confidence[sw, b], clip.confidence[sw, a]
+    flip = _body.flip_labels(range(18))  # every left/right pair, the face's included
+    kp[sw], conf[sw] = clip.keypoints2d[sw][:, flip], clip.confidence[sw][:, flip]
     found: list = []
 
     def reading(self, depths, keypoints2d, confidence):
