@@ -403,6 +403,40 @@ def test_msr_torso_is_upright_despite_its_spine_marker():
     assert _mocap.torso_spine(u) is u["spine"]
 
 
+def test_kinect_legs_are_relabelled_where_they_cross_their_hips():
+    # Frames 1 and 2 have the knee chain (knee, ankle, toe) labelled against the hips, frame 3
+    # only the ankle and toe against the knees; frame 0 is right; frame 4 has the knees
+    # crossed by less than the margin (a narrow stance): left as it is.
+    hip_l, hip_r = np.array([0.1, 1.0, 0.0]), np.array([-0.1, 1.0, 0.0])
+    right = {"hip_l": hip_l, "hip_r": hip_r, "knee_l": [0.12, 0.55, 0.0],
+             "knee_r": [-0.12, 0.55, 0.0], "ankle_l": [0.12, 0.1, 0.0],
+             "ankle_r": [-0.12, 0.1, 0.0], "toe_l": [0.12, 0.0, 0.15],
+             "toe_r": [-0.12, 0.0, 0.15]}  # fmt: skip
+    m = {k: np.tile(np.asarray(v, float), (5, 1)) for k, v in right.items()}
+    for j in ("knee", "ankle", "toe"):  # frames 1, 2: the whole leg chain exchanged
+        m[f"{j}_l"][1:3], m[f"{j}_r"][1:3] = right[f"{j}_r"], right[f"{j}_l"]
+    for j in ("ankle", "toe"):  # frame 3: below the knee only
+        m[f"{j}_l"][3], m[f"{j}_r"][3] = right[f"{j}_r"], right[f"{j}_l"]
+    m["knee_l"][4], m["knee_r"][4] = [-0.005, 0.55, 0.0], [0.005, 0.55, 0.0]
+    fixed, counts = _mocap._consistent_legs(m)
+    assert counts == [2, 1]
+    for k in right:
+        assert np.allclose(fixed[k][:4], right[k]), k
+        assert np.array_equal(fixed[k][4], m[k][4]), k  # within the margin: unchanged
+    assert m["knee_l"][1][0] < 0  # the input is not modified
+
+
+def test_msr_subject_two_stands_on_uncrossed_legs():
+    # MSR Action3D's Kinect tracker labels subject 2's knees against the hips (the thighs
+    # through each other on every frame); loaded, the knees sit on their own hips' sides.
+    _require_data("msr-action3d-skeleton3d")
+    m, _, info = _mocap.load_markers("msr:a05_s02_e01")
+    assert info["knees_relabelled"] == len(m["knee_l"])
+    lateral = m["hip_l"] - m["hip_r"]
+    assert np.all(np.sum((m["knee_l"] - m["knee_r"]) * lateral, -1) > 0)
+    assert np.all(np.sum((m["ankle_l"] - m["ankle_r"]) * lateral, -1) > 0)
+
+
 def test_data_root_respects_env(tmp_path, monkeypatch):
     monkeypatch.setenv("POSETRACK_DATA", str(tmp_path))
     assert ps.data_root() == tmp_path.resolve()
