@@ -47,7 +47,8 @@ with ``reinit_check_tracked=N``), ``oaccX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
-(``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``bothways``
+(``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``legcrossW``
+(``ResidualSettings(leg_cross=W)`` in the fits and the offline smoother), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
 and the two passes averaged), ``crossfade`` (``SmoothSettings(crossfade=True)``: the
 offline windows blended over their shared frames; the default since 2026-12-02, so the same
@@ -226,6 +227,13 @@ def settings(variant: str, mode: str = "offline") -> dict:
     tracking = pt.ShapeFitSettings.tracking("online" if mode == "online" else "offline")
     if variant == "default":
         return {}
+    if variant.startswith("legcross"):  # legcrossW: ResidualSettings(leg_cross=W) in the fits
+        try:
+            fit = pt.TrackerConfig().fit
+            residuals = dataclasses.replace(fit.residuals, leg_cross=float(variant[8:]))
+            return {"config": pt.TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     if variant == "far2d":  # before the numbered "far" variants

@@ -430,6 +430,12 @@ class Tracker:
             # The step's depth bounds (TrackerConfig.far_side_bound) bound the smoother too.
             bounds = dataclasses.replace(motion.residuals, depth_bounds=True)
             self._smoother = dataclasses.replace(self._smoother, residuals=bounds)
+        cross = 0.0 if config is None else config.fit.residuals.leg_cross
+        if cross > 0 and self._smoother.residuals.leg_cross == 0:
+            # The fits' limit on crossed legs (ResidualSettings.leg_cross) limits the smoother
+            # too: its landmarks would cross them again where the detector exchanged them.
+            limit = dataclasses.replace(self._smoother.residuals, leg_cross=cross)
+            self._smoother = dataclasses.replace(self._smoother, residuals=limit)
         if isinstance(sides, str) and sides == "auto":
             sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):
@@ -516,7 +522,13 @@ class Tracker:
         """With ``TrackerConfig.reinit_check_delta``: (frame, Delta of the plain fit, Delta of
         the exchanged fit) of every re-initialisation whose facing check weighed the two (since
         the last :meth:`run`; a frame the offline tracker tracks again appears again)."""
-        self._init_settings = dataclasses.replace(self.config.fit, max_steps=self.config.init_steps)
+        # The initial fit reads the facing from the whole body; with the limit on crossed legs
+        # (ResidualSettings.leg_cross) legs the detector labelled exchanged would turn the body
+        # round instead (the legs uncross from a right facing in the frames after).
+        init_residuals = dataclasses.replace(self.config.fit.residuals, leg_cross=0.0)
+        self._init_settings = dataclasses.replace(
+            self.config.fit, max_steps=self.config.init_steps, residuals=init_residuals
+        )
         self.compile_s = 0.0
         self._init_timed = False
         self._step_calls = 0

@@ -305,3 +305,54 @@ def test_leg_limits_choose_the_backward_knee_an_ankle_seen_in_2d_allows(fit_jit)
         errs[w] = np.linalg.norm(np.asarray(B.keypoints(shape, res.params))[13] - truth)
     assert errs[0.0] > 0.2, f"without limits the ankle should fold toward the camera: {errs}"
     assert errs[1.0] < 0.03, f"with limits the ankle should be found: {errs}"
+
+
+def test_leg_cross_costs_only_legs_crossed_to_the_other_side():
+    """The crossing limit reads the model's convention (the root's x is the subject's left):
+    legs straight or spread cost nothing; a left thigh swung across past the right leg costs
+    the metres by which its knee and its ankle crossed, however the body is turned."""
+    from posetrack._residuals import leg_cross_residuals
+
+    shape = B.BodyShape.default()
+    rest = np.zeros(43)
+    rest[3::4] = 1.0
+    zero = np.asarray(leg_cross_residuals(jnp.asarray(rest, jnp.float32), shape))
+    np.testing.assert_array_equal(zero, 0.0)
+    swing = S.matrix_to_quat(S.rz(np.radians(30.0)))  # the left thigh out to the left
+    spread = leg_cross_residuals(_with_joint(rest, 8, swing), shape)
+    np.testing.assert_array_equal(np.asarray(spread), 0.0)
+    for turn in (0.0, 90.0, -140.0):
+        root = S.matrix_to_quat(S.ry(np.radians(turn)))
+        across = _with_joint(_with_joint(rest, 0, root), 8, S.matrix_to_quat(S.rz(np.radians(-40))))
+        kp = np.asarray(B.keypoints(shape, across))
+        left_axis = np.asarray(S.ry(np.radians(turn)))[:, 0]
+        want = [(kp[9] - kp[12]) @ left_axis, (kp[10] - kp[13]) @ left_axis]
+        assert 0.03 < want[0] < want[1]  # the knee crossed by a little, the ankle by more
+        got = np.asarray(leg_cross_residuals(across, shape))
+        np.testing.assert_allclose(got, want, atol=1e-5)
+    with pytest.raises(ValueError, match="leg_cross"):
+        ResidualSettings(leg_cross=-1.0)
+
+
+def test_leg_cross_keeps_a_side_view_from_following_exchanged_leg_labels(fit_jit):
+    """A side view whose knee and ankle labels the detector exchanged: the paper's model
+    fits them by swinging each thigh across the body (the far knee in front of the near one,
+    the hips where they were); with the limit the legs stay on their own sides."""
+    from posetrack._residuals import leg_cross_residuals
+
+    shape = B.BodyShape.default()
+    true = np.asarray(B.facing_camera_params(2.6), np.float64)
+    face = np.asarray(S.quat_to_matrix(jnp.asarray(true[3:7])))
+    true[3:7] = S.matrix_to_quat(face @ np.asarray(S.ry(np.radians(80.0))))
+    true = jnp.asarray(true, jnp.float32)
+    lm = _landmarks(shape, true)
+    swap = np.asarray(B.flip_labels((9, 10, 12, 13)))
+    lm = dataclasses.replace(lm, keypoints2d=lm.keypoints2d[swap], points3d=lm.points3d[swap])
+    all_ = jnp.ones(18, bool)
+    crossed = {}
+    for w in (0.0, 10.0):
+        settings = FitSettings(max_steps=30, residuals=ResidualSettings(loss="l2", leg_cross=w))
+        res = fit_jit(true, shape, lm, INTR, use3d=all_, use2d=all_, settings=settings)
+        crossed[w] = float(np.max(np.asarray(leg_cross_residuals(res.params, shape))))
+    assert crossed[0.0] > 0.1, f"the paper's model should cross the legs: {crossed}"
+    assert crossed[10.0] < 0.03, f"with the limit the legs should stay apart: {crossed}"
