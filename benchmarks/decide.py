@@ -228,9 +228,15 @@ def settings(variant: str, mode: str = "offline") -> dict:
     if variant == "default":
         return {}
     if variant.startswith("legcross"):  # legcrossW: ResidualSettings(leg_cross=W) in the fits
+        # legcrossW-free: and leg_labels_free=True
         try:
             fit = pt.TrackerConfig().fit
-            residuals = dataclasses.replace(fit.residuals, leg_cross=float(variant[8:]))
+            weight, _, free = variant[8:].partition("-")
+            if free not in ("", "free"):
+                raise ValueError("expected legcrossW or legcrossW-free")
+            residuals = dataclasses.replace(
+                fit.residuals, leg_cross=float(weight), leg_labels_free=free == "free"
+            )
             return {"config": pt.TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None

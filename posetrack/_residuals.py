@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, keypoints
+from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, flip_labels, keypoints
 from ._camera import Intrinsics, project
 from ._observe import Landmarks, depth_bounds
 from ._rotation import quat_normalize, quat_to_matrix
@@ -65,6 +65,11 @@ class ResidualSettings:
     """Weight of the soft limit that keeps the knees and the ankles from crossing to the other
     side of the body (:func:`leg_cross_residuals`; 0: none, the paper's model). Not in the
     paper."""
+    leg_labels_free: bool = False
+    """Fit each knee pair and each ankle pair whichever way round is closer (the smaller of
+    the pair's residuals as labelled and with the model's left and right exchanged), so a
+    detector's exchanged leg labels cost a right-facing pose nothing (:func:`landmark_residuals`).
+    Off: the paper's model. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
     (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
@@ -115,6 +120,29 @@ def landmark_residuals(
     Not in the paper.
     """
     M = keypoints(shape, params)
+    args = (landmarks, intrinsics, use3d, use2d, metres_per_pixel, settings)
+    e3, e2 = _data_terms(M, *args)
+    if settings.leg_labels_free:
+        # The same landmarks against the model with its knees and ankles exchanged; per pair,
+        # the smaller of the two.
+        flip = jnp.asarray(flip_labels([k for pair in _KNEE_ANKLE_PAIRS for k in pair]))
+        x3, x2 = _data_terms(M[flip], *args)
+        cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
+        cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
+        take = jnp.zeros(M.shape[0], bool)
+        for r, left in _KNEE_ANKLE_PAIRS:
+            both = cost_x[r] + cost_x[left] < cost[r] + cost[left]
+            take = take.at[r].set(both).at[left].set(both)
+        e3 = jnp.where(take[:, None], x3, e3)
+        e2 = jnp.where(take[:, None], x2, e2)
+    if settings.loss == "l1":
+        e3 = _sqrt_reweight(e3, settings.eps)
+        e2 = _sqrt_reweight(e2, settings.eps)
+    return jnp.concatenate([e3, e2], axis=-1)
+
+
+def _data_terms(M, landmarks, intrinsics, use3d, use2d, metres_per_pixel, settings):
+    """Eq. (1)'s 3D and 2D residuals of model keypoints ``M`` (before any loss)."""
     m = project(intrinsics, M)
     e3 = (M - landmarks.points3d) * use3d[:, None]
     if settings.depth_bounds:
@@ -122,10 +150,7 @@ def landmark_residuals(
         in_front = jnp.maximum(landmarks.points3d[:, 2] - M[:, 2], 0.0)
         e3 = e3.at[:, 2].add(jnp.where(bound, in_front, 0.0))
     e2 = (m - landmarks.keypoints2d) * (use2d * metres_per_pixel)[:, None]
-    if settings.loss == "l1":
-        e3 = _sqrt_reweight(e3, settings.eps)
-        e2 = _sqrt_reweight(e2, settings.eps)
-    return jnp.concatenate([e3, e2], axis=-1)
+    return e3, e2
 
 
 def _sqrt_reweight(e: Array, eps: float) -> Array:

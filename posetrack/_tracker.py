@@ -430,12 +430,17 @@ class Tracker:
             # The step's depth bounds (TrackerConfig.far_side_bound) bound the smoother too.
             bounds = dataclasses.replace(motion.residuals, depth_bounds=True)
             self._smoother = dataclasses.replace(self._smoother, residuals=bounds)
-        cross = 0.0 if config is None else config.fit.residuals.leg_cross
-        if cross > 0 and self._smoother.residuals.leg_cross == 0:
+        fits = None if config is None else config.fit.residuals
+        if fits is not None and (fits.leg_cross > 0 or fits.leg_labels_free):
             # The fits' limit on crossed legs (ResidualSettings.leg_cross) limits the smoother
-            # too: its landmarks would cross them again where the detector exchanged them.
-            limit = dataclasses.replace(self._smoother.residuals, leg_cross=cross)
-            self._smoother = dataclasses.replace(self._smoother, residuals=limit)
+            # too: its landmarks would cross them again where the detector exchanged them; and
+            # legs fitted label-free (leg_labels_free) are so in the smoother too.
+            legs = dataclasses.replace(
+                self._smoother.residuals,
+                leg_cross=max(fits.leg_cross, self._smoother.residuals.leg_cross),
+                leg_labels_free=fits.leg_labels_free or self._smoother.residuals.leg_labels_free,
+            )
+            self._smoother = dataclasses.replace(self._smoother, residuals=legs)
         if isinstance(sides, str) and sides == "auto":
             sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):

@@ -356,3 +356,12 @@ def test_leg_cross_keeps_a_side_view_from_following_exchanged_leg_labels(fit_jit
         crossed[w] = float(np.max(np.asarray(leg_cross_residuals(res.params, shape))))
     assert crossed[0.0] > 0.1, f"the paper's model should cross the legs: {crossed}"
     assert crossed[10.0] < 0.03, f"with the limit the legs should stay apart: {crossed}"
+    # Fitted label-free (each knee and ankle pair whichever way round is closer), the
+    # exchanged labels cost the true pose nothing: the legs stay where they are.
+    free = FitSettings(max_steps=30, residuals=ResidualSettings(loss="l2", leg_labels_free=True))
+    res = fit_jit(true, shape, lm, INTR, use3d=all_, use2d=all_, settings=free)
+    legs = [9, 10, 12, 13]
+    fitted, truth = (np.asarray(B.keypoints(shape, p))[legs] for p in (res.params, true))
+    off = fitted - truth
+    assert np.abs(off).max() < 0.01, off
+    assert float(np.max(np.asarray(leg_cross_residuals(res.params, shape)))) == 0.0
