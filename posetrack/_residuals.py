@@ -39,6 +39,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, flip_labels, keypoints
 from ._camera import Intrinsics, project
+from ._metrics import LIMB_PAIRS
 from ._observe import Landmarks, depth_bounds
 from ._rotation import quat_normalize, quat_to_matrix
 
@@ -125,14 +126,12 @@ def landmark_residuals(
     if settings.leg_labels_free:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
         # the smaller of the two.
-        flip = jnp.asarray(flip_labels([k for pair in _KNEE_ANKLE_PAIRS for k in pair]))
-        x3, x2 = _data_terms(M[flip], *args)
+        right, left = (jnp.asarray(side) for side in zip(*_KNEE_ANKLE_PAIRS, strict=True))
+        x3, x2 = _data_terms(M[flip_labels(sum(_KNEE_ANKLE_PAIRS, ()))], *args)
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
-        take = jnp.zeros(M.shape[0], bool)
-        for r, left in _KNEE_ANKLE_PAIRS:
-            both = cost_x[r] + cost_x[left] < cost[r] + cost[left]
-            take = take.at[r].set(both).at[left].set(both)
+        pair = cost_x[right] + cost_x[left] < cost[right] + cost[left]
+        take = jnp.zeros(M.shape[0], bool).at[right].set(pair).at[left].set(pair)
         e3 = jnp.where(take[:, None], x3, e3)
         e2 = jnp.where(take[:, None], x2, e2)
     if settings.loss == "l1":
@@ -235,8 +234,8 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     return jnp.concatenate([twist, forward, side])
 
 
-#: COCO-18 (right, left) keypoints of the knees and the ankles.
-_KNEE_ANKLE_PAIRS = ((9, 12), (10, 13))
+#: COCO-18 (right, left) keypoints of the knees and the ankles (the legs' limb pairs).
+_KNEE_ANKLE_PAIRS = LIMB_PAIRS[2:]
 
 
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:

@@ -426,21 +426,22 @@ class Tracker:
         # What the motion model's compiled programs see: ``both_ways`` is the run's business,
         # not theirs (one program either way, and one cache entry for ``posetrack warmup``).
         self._smoother = dataclasses.replace(motion, both_ways=False)
-        if config is not None and config.far_side_bound and not motion.residuals.depth_bounds:
-            # The step's depth bounds (TrackerConfig.far_side_bound) bound the smoother too.
-            bounds = dataclasses.replace(motion.residuals, depth_bounds=True)
-            self._smoother = dataclasses.replace(self._smoother, residuals=bounds)
-        fits = None if config is None else config.fit.residuals
-        if fits is not None and (fits.leg_cross > 0 or fits.leg_labels_free):
-            # The fits' limit on crossed legs (ResidualSettings.leg_cross) limits the smoother
-            # too: its landmarks would cross them again where the detector exchanged them; and
-            # legs fitted label-free (leg_labels_free) are so in the smoother too.
-            legs = dataclasses.replace(
-                self._smoother.residuals,
-                leg_cross=max(fits.leg_cross, self._smoother.residuals.leg_cross),
-                leg_labels_free=fits.leg_labels_free or self._smoother.residuals.leg_labels_free,
-            )
-            self._smoother = dataclasses.replace(self._smoother, residuals=legs)
+        # The smoother fits the step's landmarks, so what the step's fits add holds in it too:
+        # the depth bounds (TrackerConfig.far_side_bound), the limit on crossed legs
+        # (ResidualSettings.leg_cross: its landmarks would cross them again where the detector
+        # exchanged them) and label-free legs (ResidualSettings.leg_labels_free).
+        own, add = motion.residuals, {}
+        if config is not None:
+            fits = config.fit.residuals
+            if config.far_side_bound and not own.depth_bounds:
+                add["depth_bounds"] = True
+            if fits.leg_cross > own.leg_cross:
+                add["leg_cross"] = fits.leg_cross
+            if fits.leg_labels_free and not own.leg_labels_free:
+                add["leg_labels_free"] = True
+        if add:
+            residuals = dataclasses.replace(own, **add)
+            self._smoother = dataclasses.replace(self._smoother, residuals=residuals)
         if isinstance(sides, str) and sides == "auto":
             sides = None if mode == "per-frame" else SideSettings.for_mode(mode)
         if sides is not None and not isinstance(sides, SideSettings):
