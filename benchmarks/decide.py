@@ -227,6 +227,18 @@ def settings(variant: str, mode: str = "offline") -> dict:
     tracking = pt.ShapeFitSettings.tracking("online" if mode == "online" else "offline")
     if variant == "default":
         return {}
+    if variant.startswith("smoothleg"):  # smoothlegW[-free]: the leg terms in the smoother only
+        try:
+            weight, _, free = variant[9:].partition("-")
+            if free not in ("", "free"):
+                raise ValueError("expected smoothlegW or smoothlegW-free")
+            motion = pt.SmoothSettings()
+            residuals = dataclasses.replace(
+                motion.residuals, leg_cross=float(weight), leg_labels_free=free == "free"
+            )
+            return {"motion": dataclasses.replace(motion, residuals=residuals)}
+        except ValueError as e:
+            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("legcross"):  # legcrossW: ResidualSettings(leg_cross=W) in the fits
         # legcrossW-free: and leg_labels_free=True
         try:

@@ -39,7 +39,7 @@ from jaxtyping import Array, Bool, Float
 
 from ._body import JOINT_NAMES, NUM_JOINTS, BodyShape, flip_labels, keypoints
 from ._camera import Intrinsics, project
-from ._metrics import LIMB_PAIRS
+from ._metrics import LEG_PAIRS
 from ._observe import Landmarks, depth_bounds
 from ._rotation import quat_normalize, quat_to_matrix
 
@@ -126,8 +126,8 @@ def landmark_residuals(
     if settings.leg_labels_free:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
         # the smaller of the two.
-        right, left = (jnp.asarray(side) for side in zip(*_KNEE_ANKLE_PAIRS, strict=True))
-        x3, x2 = _data_terms(M[flip_labels(sum(_KNEE_ANKLE_PAIRS, ()))], *args)
+        right, left = (jnp.asarray(side) for side in zip(*LEG_PAIRS, strict=True))
+        x3, x2 = _data_terms(M[flip_labels(sum(LEG_PAIRS, ()))], *args)
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
         pair = cost_x[right] + cost_x[left] < cost[right] + cost[left]
@@ -234,10 +234,6 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     return jnp.concatenate([twist, forward, side])
 
 
-#: COCO-18 (right, left) keypoints of the knees and the ankles (the legs' limb pairs).
-_KNEE_ANKLE_PAIRS = LIMB_PAIRS[2:]
-
-
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:
     """How far, in metres, the knees and the ankles have crossed to the other side of the
     body, zero while each left joint lies left of its right twin (not in the paper):
@@ -255,7 +251,7 @@ def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Arr
     """
     pts = keypoints(shape, params)
     x = quat_to_matrix(quat_normalize(params[3:7]))[:, 0]
-    crossed = [jnp.dot(pts[r] - pts[left], x) for r, left in _KNEE_ANKLE_PAIRS]
+    crossed = [jnp.dot(pts[r] - pts[left], x) for r, left in LEG_PAIRS]
     return jax.nn.relu(jnp.stack(crossed))
 
 

@@ -364,6 +364,24 @@ def test_agreement_counts_plausible_landmarks_only(scene):
     assert float(landmark_agreement(true_kps, none, 0.12)) == 1.0
 
 
+def test_agreement_takes_leg_pairs_either_way_round_with_label_free_legs(scene):
+    """With the fits' label-free legs, a knee (ankle) pair whose landmarks the detector
+    exchanged agrees with the pose as it was fitted; as labelled, both count against it."""
+    lm, true_kps = scene["lm"], _kps(_true_pose())
+    assert float(np.linalg.norm(true_kps[9] - true_kps[12])) > 0.12  # knees told apart
+    assert all(bool(lm.has_depth[i]) for i in (9, 12))
+    pts = np.asarray(lm.points3d).copy()
+    pts[[9, 12]] = pts[[12, 9]]
+    exchanged = eqx.tree_at(lambda m: m.points3d, lm, jnp.asarray(pts))
+    assert float(landmark_agreement(true_kps, exchanged, 0.12)) == pytest.approx(11 / 14)
+    assert float(landmark_agreement(true_kps, exchanged, 0.12, True)) == pytest.approx(13 / 14)
+    # Labels as detected: the same count either way; the arms are not label-free.
+    assert float(landmark_agreement(true_kps, lm, 0.12, True)) == pytest.approx(13 / 14)
+    pts[[3, 6]] = pts[[6, 3]]
+    arms = eqx.tree_at(lambda m: m.points3d, lm, jnp.asarray(pts))
+    assert float(landmark_agreement(true_kps, arms, 0.12, True)) < 13 / 14
+
+
 # ---------------------------------------------------------------------------------------------
 # Reseeding
 
