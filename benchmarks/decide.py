@@ -48,7 +48,9 @@ with ``reinit_check_tracked=N``), ``oaccX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
 (``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``legcrossW``
-(``ResidualSettings(leg_cross=W)`` in the fits and the offline smoother), ``bothways``
+(``ResidualSettings(leg_cross=W)`` in the fits and the offline smoother; ``legcrossW-free``: and
+``leg_labels_free=True``), ``smoothlegW`` / ``smoothlegW-free`` (the same in the motion
+model's residuals only: ``SmoothSettings.residuals``), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
 and the two passes averaged), ``crossfade`` (``SmoothSettings(crossfade=True)``: the
 offline windows blended over their shared frames; the default since 2026-12-02, so the same
