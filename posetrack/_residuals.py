@@ -70,6 +70,9 @@ class ResidualSettings:
     """Fit each knee pair and each ankle pair whichever way round is closer (the smaller of
     the pair's residuals as labelled and with the model's left and right exchanged), so a
     detector's exchanged leg labels cost a right-facing pose nothing (:func:`landmark_residuals`).
+    In the tracker the track-loss test's agreement takes the pairs the same way
+    (:func:`posetrack._step.landmark_agreement`), and the initial fit takes the labels as
+    detected (they tell it the facing), as it does without the limit on crossed legs.
     Off: the paper's model. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly

@@ -528,10 +528,15 @@ class Tracker:
         """With ``TrackerConfig.reinit_check_delta``: (frame, Delta of the plain fit, Delta of
         the exchanged fit) of every re-initialisation whose facing check weighed the two (since
         the last :meth:`run`; a frame the offline tracker tracks again appears again)."""
-        # The initial fit reads the facing from the whole body; with the limit on crossed legs
-        # (ResidualSettings.leg_cross) legs the detector labelled exchanged would turn the body
-        # round instead (the legs uncross from a right facing in the frames after).
-        init_residuals = dataclasses.replace(self.config.fit.residuals, leg_cross=0.0)
+        # The initial fit reads the facing from the whole body, the detector's leg labels
+        # included: with the limit on crossed legs (ResidualSettings.leg_cross) legs the
+        # detector labelled exchanged would turn the body round instead (the legs uncross from
+        # a right facing in the frames after), and with label-free legs
+        # (ResidualSettings.leg_labels_free) the legs would say nothing of the facing (a side
+        # view under occlusion then started turned round).
+        init_residuals = dataclasses.replace(
+            self.config.fit.residuals, leg_cross=0.0, leg_labels_free=False
+        )
         self._init_settings = dataclasses.replace(
             self.config.fit, max_steps=self.config.init_steps, residuals=init_residuals
         )

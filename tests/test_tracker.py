@@ -102,6 +102,22 @@ def test_static_fields_are_declared_static():
     assert TrackerConfig(r=0).r == 0.0 and isinstance(TrackerConfig(r=0).r, float)
 
 
+def test_leg_terms_are_left_out_of_the_initial_fit_only(seq):
+    """The limit on crossed legs and label-free legs hold in the step's fits and the offline
+    smoother; the initial fit takes the detector's leg labels as they are (they tell it the
+    facing: with either term a side view could start turned round)."""
+    fit = TrackerConfig().fit
+    residuals = dataclasses.replace(fit.residuals, leg_cross=10.0, leg_labels_free=True)
+    config = TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))
+    tracker = pt.Tracker(seq.intrinsics, config, mode="offline")
+    init = tracker._init_settings.residuals
+    assert init.leg_cross == 0.0 and not init.leg_labels_free
+    assert tracker._init_settings.max_steps == config.init_steps
+    assert tracker.config.fit.residuals == residuals  # the step's fits keep both
+    smoother = tracker._smoother.residuals
+    assert smoother.leg_cross == 10.0 and smoother.leg_labels_free
+
+
 def test_frames_without_observation_hold_the_pose(seq):
     # The offline run passes through the body-shape refinement with the gaps in it (fewer steps).
     tracker = pt.Tracker(seq.intrinsics, LVM, refine=quick_refine())
