@@ -49,8 +49,10 @@ with ``reinit_check_tracked=N``), ``oaccX``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
 (``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``legcrossW``
 (``ResidualSettings(leg_cross=W)`` in the fits and the offline smoother; ``legcrossW-free``: and
-``leg_labels_free=True``), ``smoothlegW`` / ``smoothlegW-free`` (the same in the motion
-model's residuals only: ``SmoothSettings.residuals``), ``bothways``
+``leg_labels_free=True``; ``legcrossW-freeside``: label-free in side views only,
+``leg_labels_free_sin=posetrack._visibility.SIDE_VIEW_SIN``), ``smoothlegW`` /
+``smoothlegW-free`` (the same in the motion model's residuals only:
+``SmoothSettings.residuals``), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
 and the two passes averaged), ``crossfade`` (``SmoothSettings(crossfade=True)``: the
 offline windows blended over their shared frames; the default since 2026-12-02, so the same
@@ -104,6 +106,7 @@ from seeds import TUNING_SEEDS, parse_seeds
 from tune import PROCEDURAL, REAL, check_seeds, decision_measures, real_motion, shared_measures
 
 import posetrack as pt
+from posetrack._visibility import SIDE_VIEW_SIN
 
 
 def clips(
@@ -246,11 +249,12 @@ def settings(variant: str, mode: str = "offline") -> dict:
         try:
             fit = pt.TrackerConfig().fit
             weight, _, free = variant[8:].partition("-")
-            if free not in ("", "free"):
-                raise ValueError("expected legcrossW or legcrossW-free")
+            if free not in ("", "free", "freeside"):
+                raise ValueError("expected legcrossW, legcrossW-free or legcrossW-freeside")
             residuals = dataclasses.replace(
-                fit.residuals, leg_cross=float(weight), leg_labels_free=free == "free"
-            )
+                fit.residuals, leg_cross=float(weight), leg_labels_free=free != "",
+                leg_labels_free_sin=SIDE_VIEW_SIN if free == "freeside" else 0.0,
+            )  # fmt: skip
             return {"config": pt.TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None

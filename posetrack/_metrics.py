@@ -145,8 +145,8 @@ def identity_jumps(identity: np.ndarray) -> int:
 #: Left/right pairs of limb keypoints (COCO-18) checked by :func:`swapped_limb_frames`:
 #: elbows, wrists, knees, ankles.
 LIMB_PAIRS: tuple[tuple[int, int], ...] = ((3, 6), (4, 7), (9, 12), (10, 13))
-#: The legs' limb pairs (knees, ankles): what ``ResidualSettings.leg_labels_free`` lets the fits
-#: take whichever way round.
+#: The knees and ankles, (right, left) keypoint indices (the legs' half of ``LIMB_PAIRS``; what
+#: ``ResidualSettings.leg_labels_free`` lets the fits take whichever way round).
 LEG_PAIRS: tuple[tuple[int, int], ...] = LIMB_PAIRS[2:]
 
 

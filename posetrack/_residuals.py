@@ -74,6 +74,12 @@ class ResidualSettings:
     (:func:`posetrack._step.landmark_agreement`), and the initial fit takes the labels as
     detected (they tell it the facing), as it does without the limit on crossed legs.
     Off: the paper's model. Not in the paper."""
+    leg_labels_free_sin: float = 0.0
+    """With :attr:`leg_labels_free`: only while the pose is turned side-on to the camera, the
+    sine of its turn (the camera-z part of the pelvis' right-to-left axis, as
+    :func:`posetrack._visibility.far_side` reads it) above this in size; 0: in every pose.
+    Facing the camera (or away) the detector tells the legs apart, and their labels carry
+    the facing. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
     (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
@@ -90,6 +96,11 @@ class ResidualSettings:
             raise ValueError(f"ResidualSettings.neck_limit must be >= 0, got {self.neck_limit}")
         if not self.leg_cross >= 0:
             raise ValueError(f"ResidualSettings.leg_cross must be >= 0, got {self.leg_cross}")
+        if not 0 <= self.leg_labels_free_sin < 1:
+            raise ValueError(
+                "ResidualSettings.leg_labels_free_sin must be in [0, 1), got "
+                f"{self.leg_labels_free_sin}"
+            )
 
 
 def pixel_scale(
@@ -134,6 +145,8 @@ def landmark_residuals(
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
         pair = cost_x[right] + cost_x[left] < cost[right] + cost[left]
+        if settings.leg_labels_free_sin > 0:
+            pair = pair & side_on(params, settings.leg_labels_free_sin)
         take = jnp.zeros(M.shape[0], bool).at[right].set(pair).at[left].set(pair)
         e3 = jnp.where(take[:, None], x3, e3)
         e2 = jnp.where(take[:, None], x2, e2)
@@ -235,6 +248,12 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     forward = jax.nn.relu(d_z - jnp.sin(jnp.radians(KNEE_HYPER_MAX_DEG)))
     side = jax.nn.relu(jnp.abs(d_x) - jnp.sin(jnp.radians(KNEE_SIDE_MAX_DEG)))
     return jnp.concatenate([twist, forward, side])
+
+
+def side_on(params: Float[Array, 43], sin: float) -> Bool[Array, ""]:
+    """True while the pose is turned side-on to the camera: the camera-z part of the pelvis'
+    right-to-left axis (the sine of the turn) above ``sin`` in size."""
+    return jnp.abs(quat_to_matrix(quat_normalize(params[3:7]))[2, 0]) > sin
 
 
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:

@@ -30,6 +30,7 @@ from ._metrics import LEG_PAIRS
 from ._observe import Landmarks, as_bounds, confident_depth, without_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
+from ._residuals import side_on
 from ._select import consensus_set, landmark_subsets
 from ._visibility import far_side, self_occluded, side_view_bounds
 
@@ -193,7 +194,7 @@ def landmark_agreement(
     keypoints3d: Float[Array, "kpt 3"],
     lm: Landmarks,
     distance: Float[Array, ""] | float,
-    legs_free: bool = False,
+    legs_free: bool | Bool[Array, ""] = False,
 ) -> Float[Array, ""]:
     """The share of plausible 3D landmarks within ``distance`` of ``keypoints3d`` (1 if none).
 
@@ -202,21 +203,22 @@ def landmark_agreement(
     0.5-1 m back); no pose can agree with it, so it does not count against the pose. The
     track-loss test (``TrackerConfig.lost_agreement``) reads this.
 
-    ``legs_free`` (static; the fits' ``ResidualSettings.leg_labels_free``): each knee pair and
-    each ankle pair counted whichever way round agrees with more of its landmarks, as the fits
-    took them; otherwise a pose fitted to exchanged leg labels would disagree with them.
+    ``legs_free`` (the fits' ``ResidualSettings.leg_labels_free``; False skips it, an array
+    gates it): each knee pair and each ankle pair counted whichever way round agrees with
+    more of its landmarks, as the fits took them; otherwise a pose fitted to exchanged leg
+    labels would disagree with them.
     """
     near = jnp.linalg.norm(keypoints3d - lm.points3d, axis=-1) < distance
     z = jnp.where(lm.has_depth, lm.points3d[:, 2], jnp.nan)
     plausible = lm.has_depth & (jnp.abs(z - jnp.nanmedian(z)) <= PLAUSIBLE_DEPTH_BAND)
-    if legs_free:
+    if legs_free is not False:
         pairs = LEG_PAIRS
         right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
         flipped = keypoints3d[body.flip_labels(sum(pairs, ()))]
         near_x = jnp.linalg.norm(flipped - lm.points3d, axis=-1) < distance
         count = (near & plausible).astype(jnp.int32)
         count_x = (near_x & plausible).astype(jnp.int32)
-        pair = count_x[right] + count_x[left] > count[right] + count[left]
+        pair = (count_x[right] + count_x[left] > count[right] + count[left]) & legs_free
         take = jnp.zeros(near.shape[0], bool).at[right].set(pair).at[left].set(pair)
         near = jnp.where(take, near_x, near)
     n = jnp.sum(plausible)
@@ -360,9 +362,11 @@ def tracker_step(
     regular = kps[: max(N - S, 1)]
     spread = jnp.median(jnp.linalg.norm(regular - kps[best][None], axis=-1), axis=0)
     n3 = jnp.sum(lm.has_depth)
-    agreement = landmark_agreement(
-        kps[best], lm, config.consensus_distance, config.fit.residuals.leg_labels_free
+    legs = config.fit.residuals
+    legs_free = legs.leg_labels_free and (
+        side_on(chosen, legs.leg_labels_free_sin) if legs.leg_labels_free_sin > 0 else True
     )
+    agreement = landmark_agreement(kps[best], lm, config.consensus_distance, legs_free)
     new_state = TrackState(
         hypotheses=hyps,
         previous=jax.vmap(lambda p: body.keypoints(shape, p))(hyps),

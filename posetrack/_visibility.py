@@ -37,7 +37,7 @@ from jaxtyping import Array, Bool, Float
 from . import _body as body
 from ._body import NUM_KEYPOINTS
 from ._camera import Intrinsics, backproject
-from ._metrics import LIMB_PAIRS
+from ._metrics import LEG_PAIRS, LIMB_PAIRS
 from ._observe import Landmarks
 from ._render import Capsules, capsule_fields, capsule_params
 from ._rotation import quat_normalize, quat_to_matrix
@@ -131,10 +131,6 @@ def far_side(
 FACE_PAIRS: tuple[tuple[int, int], ...] = ((14, 15), (16, 17))
 #: The neck's keypoint index.
 NECK = 1
-
-
-#: The knees and ankles, (right, left) keypoint indices (the legs' half of ``LIMB_PAIRS``).
-LEG_PAIRS: tuple[tuple[int, int], ...] = LIMB_PAIRS[2:]
 
 
 def side_view_bounds(
