@@ -365,3 +365,35 @@ def test_leg_cross_keeps_a_side_view_from_following_exchanged_leg_labels(fit_jit
     off = fitted - truth
     assert np.abs(off).max() < 0.01, off
     assert float(np.max(np.asarray(leg_cross_residuals(res.params, shape)))) == 0.0
+
+
+def test_label_free_legs_only_side_on_with_a_turn_threshold():
+    """``leg_labels_free_sin``: a pose facing the camera is held to the detector's leg labels
+    (they carry its facing); turned side-on, exchanged leg labels cost it nothing."""
+    shape = B.BodyShape.default()
+    swap = np.asarray(B.flip_labels((9, 10, 12, 13)))
+    all_ = jnp.ones(18, bool)
+    legs = np.array([9, 10, 12, 13])
+
+    def leg_cost(turn_deg, **kw):
+        true = np.asarray(B.facing_camera_params(2.6), np.float64)
+        face = np.asarray(S.quat_to_matrix(jnp.asarray(true[3:7])))
+        true[3:7] = S.matrix_to_quat(face @ np.asarray(S.ry(np.radians(turn_deg))))
+        true = jnp.asarray(true, jnp.float32)
+        lm = _landmarks(shape, true)
+        lm = dataclasses.replace(lm, keypoints2d=lm.keypoints2d[swap], points3d=lm.points3d[swap])
+        mpp = pixel_scale(true, shape, INTR)
+        r = landmark_residuals(
+            true, shape, lm, INTR, use3d=all_, use2d=jnp.zeros(18, bool),
+            metres_per_pixel=mpp, settings=ResidualSettings(loss="l2", **kw),
+        )  # fmt: skip
+        return float(np.abs(np.asarray(r)[legs]).max())
+
+    for turn in (0.0, 80.0):
+        assert leg_cost(turn) > 0.05  # as labelled, the exchanged legs cost the true pose
+        assert leg_cost(turn, leg_labels_free=True) < 1e-5  # label-free in every pose
+    gated = dict(leg_labels_free=True, leg_labels_free_sin=0.5)
+    assert leg_cost(0.0, **gated) == pytest.approx(leg_cost(0.0))  # facing: labels hold
+    assert leg_cost(80.0, **gated) < 1e-5  # side-on: either way round
+    with pytest.raises(ValueError, match="leg_labels_free_sin"):
+        ResidualSettings(leg_labels_free_sin=1.0)

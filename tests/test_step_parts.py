@@ -375,6 +375,11 @@ def test_agreement_takes_leg_pairs_either_way_round_with_label_free_legs(scene):
     exchanged = eqx.tree_at(lambda m: m.points3d, lm, jnp.asarray(pts))
     assert float(landmark_agreement(true_kps, exchanged, 0.12)) == pytest.approx(11 / 14)
     assert float(landmark_agreement(true_kps, exchanged, 0.12, True)) == pytest.approx(13 / 14)
+    # Gated (ResidualSettings.leg_labels_free_sin: a traced side-on test), closed: as labelled.
+    off = landmark_agreement(true_kps, exchanged, 0.12, jnp.asarray(False))
+    assert float(off) == pytest.approx(11 / 14)
+    on = landmark_agreement(true_kps, exchanged, 0.12, jnp.asarray(True))
+    assert float(on) == pytest.approx(13 / 14)
     # Labels as detected: the same count either way; the arms are not label-free.
     assert float(landmark_agreement(true_kps, lm, 0.12, True)) == pytest.approx(13 / 14)
     pts[[3, 6]] = pts[[6, 3]]
