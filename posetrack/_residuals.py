@@ -140,14 +140,11 @@ def landmark_residuals(
     if settings.leg_labels_free:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
         # the smaller of the two.
-        right, left = (jnp.asarray(side) for side in zip(*LEG_PAIRS, strict=True))
-        x3, x2 = _data_terms(M[flip_labels(sum(LEG_PAIRS, ()))], *args)
+        x3, x2 = _data_terms(M[LEGS_EXCHANGED], *args)
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
-        pair = cost_x[right] + cost_x[left] < cost[right] + cost[left]
-        if settings.leg_labels_free_sin > 0:
-            pair = pair & side_on(params, settings.leg_labels_free_sin)
-        take = jnp.zeros(M.shape[0], bool).at[right].set(pair).at[left].set(pair)
+        side = settings.leg_labels_free_sin
+        take = exchanged_leg_pairs(cost, cost_x, side_on(params, side) if side > 0 else True)
         e3 = jnp.where(take[:, None], x3, e3)
         e2 = jnp.where(take[:, None], x2, e2)
     if settings.loss == "l1":
@@ -248,6 +245,21 @@ def leg_limit_residuals(params: Float[Array, 43]) -> Float[Array, 6]:
     forward = jax.nn.relu(d_z - jnp.sin(jnp.radians(KNEE_HYPER_MAX_DEG)))
     side = jax.nn.relu(jnp.abs(d_x) - jnp.sin(jnp.radians(KNEE_SIDE_MAX_DEG)))
     return jnp.concatenate([twist, forward, side])
+
+
+#: ``x[LEGS_EXCHANGED]`` reads each knee and ankle as its other side's.
+LEGS_EXCHANGED = flip_labels(sum(LEG_PAIRS, ()))
+
+
+def exchanged_leg_pairs(
+    cost: Float[Array, " kpt"], cost_x: Float[Array, " kpt"], gate: Bool[Array, ""] | bool = True
+) -> Bool[Array, " kpt"]:
+    """Where a knee or ankle is taken the other way round: on both keypoints of each leg
+    pair whose summed ``cost_x`` (the model's knees and ankles exchanged) is below its summed
+    ``cost`` (as labelled), while ``gate``; per keypoint, lower is better."""
+    right, left = (jnp.asarray(side) for side in zip(*LEG_PAIRS, strict=True))
+    pair = (cost_x[right] + cost_x[left] < cost[right] + cost[left]) & gate
+    return jnp.zeros(cost.shape[0], bool).at[right].set(pair).at[left].set(pair)
 
 
 def side_on(params: Float[Array, 43], sin: float) -> Bool[Array, ""]:

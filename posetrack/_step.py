@@ -26,11 +26,10 @@ from ._config import TrackerConfig
 from ._depthobs import landmark_offsets, tracker_landmarks, tracker_observation
 from ._fit import fit_hypotheses, fit_pose
 from ._limbs import limb_hypotheses
-from ._metrics import LEG_PAIRS
 from ._observe import Landmarks, as_bounds, confident_depth, without_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
-from ._residuals import side_on
+from ._residuals import LEGS_EXCHANGED, exchanged_leg_pairs, side_on
 from ._select import consensus_set, landmark_subsets
 from ._visibility import far_side, self_occluded, side_view_bounds
 
@@ -212,15 +211,12 @@ def landmark_agreement(
     z = jnp.where(lm.has_depth, lm.points3d[:, 2], jnp.nan)
     plausible = lm.has_depth & (jnp.abs(z - jnp.nanmedian(z)) <= PLAUSIBLE_DEPTH_BAND)
     if legs_free is not False:
-        pairs = LEG_PAIRS
-        right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
-        flipped = keypoints3d[body.flip_labels(sum(pairs, ()))]
+        flipped = keypoints3d[LEGS_EXCHANGED]
         near_x = jnp.linalg.norm(flipped - lm.points3d, axis=-1) < distance
-        count = (near & plausible).astype(jnp.int32)
-        count_x = (near_x & plausible).astype(jnp.int32)
-        pair = (count_x[right] + count_x[left] > count[right] + count[left]) & legs_free
-        take = jnp.zeros(near.shape[0], bool).at[right].set(pair).at[left].set(pair)
-        near = jnp.where(take, near_x, near)
+        # Fewer disagreeing landmarks is the lower cost.
+        miss = (~near & plausible).astype(jnp.int32)
+        miss_x = (~near_x & plausible).astype(jnp.int32)
+        near = jnp.where(exchanged_leg_pairs(miss, miss_x, legs_free), near_x, near)
     n = jnp.sum(plausible)
     return jnp.where(n > 0, jnp.sum(near & plausible) / jnp.maximum(n, 1), 1.0)
 
