@@ -42,6 +42,7 @@ from ._camera import Intrinsics, project
 from ._metrics import LEG_PAIRS
 from ._observe import Landmarks, depth_bounds
 from ._rotation import quat_normalize, quat_to_matrix
+from ._visibility import turn_sine
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,14 +138,14 @@ def landmark_residuals(
     M = keypoints(shape, params)
     args = (landmarks, intrinsics, use3d, use2d, metres_per_pixel, settings)
     e3, e2 = _data_terms(M, *args)
-    if settings.leg_labels_free:
+    legs_free = label_free_legs(params, settings)
+    if legs_free is not False:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
         # the smaller of the two.
         x3, x2 = _data_terms(M[LEGS_EXCHANGED], *args)
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
-        side = settings.leg_labels_free_sin
-        take = exchanged_leg_pairs(cost, cost_x, side_on(params, side) if side > 0 else True)
+        take = exchanged_leg_pairs(cost, cost_x, legs_free)
         e3 = jnp.where(take[:, None], x3, e3)
         e2 = jnp.where(take[:, None], x2, e2)
     if settings.loss == "l1":
@@ -262,10 +263,18 @@ def exchanged_leg_pairs(
     return jnp.zeros(cost.shape[0], bool).at[right].set(pair).at[left].set(pair)
 
 
-def side_on(params: Float[Array, 43], sin: float) -> Bool[Array, ""]:
-    """True while the pose is turned side-on to the camera: the camera-z part of the pelvis'
-    right-to-left axis (the sine of the turn) above ``sin`` in size."""
-    return jnp.abs(quat_to_matrix(quat_normalize(params[3:7]))[2, 0]) > sin
+def label_free_legs(
+    params: Float[Array, 43], settings: ResidualSettings
+) -> bool | Bool[Array, ""]:
+    """Whether the knee and ankle pairs are taken whichever way round at ``params``: False
+    (static) without :attr:`ResidualSettings.leg_labels_free`; with
+    :attr:`~ResidualSettings.leg_labels_free_sin` the traced side-on test (the sine of the
+    turn, :func:`posetrack._visibility.turn_sine`, above it in size); else True."""
+    if not settings.leg_labels_free:
+        return False
+    if settings.leg_labels_free_sin > 0:
+        return jnp.abs(turn_sine(params)) > settings.leg_labels_free_sin
+    return True
 
 
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:

@@ -29,7 +29,7 @@ from ._limbs import limb_hypotheses
 from ._observe import Landmarks, as_bounds, confident_depth, without_depth
 from ._refine import refine_pose
 from ._render import Capsules, render_and_score
-from ._residuals import LEGS_EXCHANGED, exchanged_leg_pairs, side_on
+from ._residuals import LEGS_EXCHANGED, exchanged_leg_pairs, label_free_legs
 from ._select import consensus_set, landmark_subsets
 from ._visibility import far_side, self_occluded, side_view_bounds
 
@@ -358,10 +358,7 @@ def tracker_step(
     regular = kps[: max(N - S, 1)]
     spread = jnp.median(jnp.linalg.norm(regular - kps[best][None], axis=-1), axis=0)
     n3 = jnp.sum(lm.has_depth)
-    legs = config.fit.residuals
-    legs_free = legs.leg_labels_free and (
-        side_on(chosen, legs.leg_labels_free_sin) if legs.leg_labels_free_sin > 0 else True
-    )
+    legs_free = label_free_legs(chosen, config.fit.residuals)  # as the fits took the legs
     agreement = landmark_agreement(kps[best], lm, config.consensus_distance, legs_free)
     new_state = TrackState(
         hypotheses=hyps,

@@ -106,6 +106,13 @@ SIDE_VIEW_SIN = 0.5
 TORSO_PAIRS: tuple[tuple[int, int], ...] = ((2, 5), (8, 11))
 
 
+def turn_sine(params: Float[Array, 43]) -> Float[Array, ""]:
+    """The sine of the pose's turn away from facing the camera: the camera-z part of the
+    pelvis' right-to-left axis (the root frame's x), positive when the right side lies behind
+    the left. Jittable."""
+    return -quat_to_matrix(quat_normalize(params[3:7]))[2, 0]
+
+
 def far_side(
     params: Float[Array, 43], torso: bool = False, sin: Float[Array, ""] | float = SIDE_VIEW_SIN
 ) -> Bool[Array, " kpt"]:
@@ -120,7 +127,7 @@ def far_side(
     below its negative the left ones; nothing in between (a person facing the camera, or
     away). Jittable.
     """
-    turned = -quat_to_matrix(quat_normalize(params[3:7]))[2, 0]
+    turned = turn_sine(params)
     pairs = LIMB_PAIRS + (TORSO_PAIRS if torso else ())
     right, left = (jnp.asarray(side) for side in zip(*pairs, strict=True))
     flags = jnp.zeros(NUM_KEYPOINTS, bool).at[right].set(turned > sin)
