@@ -226,6 +226,22 @@ _NUMBERED = {
 }
 
 
+def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
+    """``residuals`` with a ``PREFIXW[-free|-freeside]`` variant's leg terms: the limit on
+    crossed legs at weight W, label-free legs (``-free``), in side views only (``-freeside``)."""
+    weight, _, free = variant[len(prefix):].partition("-")
+    try:
+        if free not in allowed:
+            raise ValueError("expected " + " or ".join(f"{prefix}W" + (f"-{a}" if a else "")
+                                                       for a in allowed))  # fmt: skip
+        return dataclasses.replace(
+            residuals, leg_cross=float(weight), leg_labels_free=free != "",
+            leg_labels_free_sin=SIDE_VIEW_SIN if free == "freeside" else 0.0,
+        )  # fmt: skip
+    except ValueError as e:
+        raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+
+
 def settings(variant: str, mode: str = "offline") -> dict:
     """The ``Tracker`` keyword arguments of a variant name (see the module docstring) in
     ``mode`` (the shape variants start from that mode's ``ShapeFitSettings.tracking``)."""
@@ -233,31 +249,13 @@ def settings(variant: str, mode: str = "offline") -> dict:
     if variant == "default":
         return {}
     if variant.startswith("smoothleg"):  # smoothlegW[-free]: the leg terms in the smoother only
-        try:
-            weight, _, free = variant[9:].partition("-")
-            if free not in ("", "free"):
-                raise ValueError("expected smoothlegW or smoothlegW-free")
-            motion = pt.SmoothSettings()
-            residuals = dataclasses.replace(
-                motion.residuals, leg_cross=float(weight), leg_labels_free=free == "free"
-            )
-            return {"motion": dataclasses.replace(motion, residuals=residuals)}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    if variant.startswith("legcross"):  # legcrossW: ResidualSettings(leg_cross=W) in the fits
-        # legcrossW-free: and leg_labels_free=True
-        try:
-            fit = pt.TrackerConfig().fit
-            weight, _, free = variant[8:].partition("-")
-            if free not in ("", "free", "freeside"):
-                raise ValueError("expected legcrossW, legcrossW-free or legcrossW-freeside")
-            residuals = dataclasses.replace(
-                fit.residuals, leg_cross=float(weight), leg_labels_free=free != "",
-                leg_labels_free_sin=SIDE_VIEW_SIN if free == "freeside" else 0.0,
-            )  # fmt: skip
-            return {"config": pt.TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))}
-        except ValueError as e:
-            raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
+        motion = pt.SmoothSettings()
+        residuals = _leg_terms(variant, "smoothleg", motion.residuals, ("", "free"))
+        return {"motion": dataclasses.replace(motion, residuals=residuals)}
+    if variant.startswith("legcross"):  # legcrossW[-free|-freeside]: the leg terms in the fits
+        fit = pt.TrackerConfig().fit
+        residuals = _leg_terms(variant, "legcross", fit.residuals, ("", "free", "freeside"))
+        return {"config": pt.TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))}
     if variant == "inbatch":
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     if variant == "far2d":  # before the numbered "far" variants
