@@ -50,7 +50,8 @@ with ``reinit_check_tracked=N``), ``oaccX``
 (``SideSettings.for_mode("online", online_model=X)``, metres; 0 = off), ``legcrossW``
 (``ResidualSettings(leg_cross=W)`` in the fits and the offline smoother; ``legcrossW-free``: and
 ``leg_labels_free=True``; ``legcrossW-freeside``: label-free in side views only,
-``leg_labels_free_sin=posetrack._visibility.SIDE_VIEW_SIN``), ``smoothlegW`` /
+``leg_labels_free_sin=posetrack._visibility.SIDE_VIEW_SIN``; ``legcrossW-freeM``: label-free with
+``leg_labels_margin=M``, a pair exchanged only where M times cheaper), ``smoothlegW`` /
 ``smoothlegW-free`` (the same in the motion model's residuals only:
 ``SmoothSettings.residuals``), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
@@ -227,9 +228,13 @@ _NUMBERED = {
 
 
 def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
-    """``residuals`` with a ``PREFIXW[-free|-freeside]`` variant's leg terms: the limit on
-    crossed legs at weight W, label-free legs (``-free``), in side views only (``-freeside``)."""
+    """``residuals`` with a ``PREFIXW[-free|-freeM|-freeside]`` variant's leg terms: the limit
+    on crossed legs at weight W, label-free legs (``-free``; ``-freeM``: a pair exchanged only
+    where M times cheaper than as labelled), in side views only (``-freeside``)."""
     weight, _, free = variant[len(prefix):].partition("-")
+    margin = free.removeprefix("free") if free.startswith("free") else ""
+    if margin and margin != "side":
+        free = "free"
     try:
         if free not in allowed:
             raise ValueError("expected " + " or ".join(f"{prefix}W" + (f"-{a}" if a else "")
@@ -237,6 +242,7 @@ def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
         return dataclasses.replace(
             residuals, leg_cross=float(weight), leg_labels_free=free != "",
             leg_labels_free_sin=SIDE_VIEW_SIN if free == "freeside" else 0.0,
+            leg_labels_margin=float(margin) if free == "free" and margin else 1.0,
         )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"error: --variants: {variant!r}: {e}") from None

@@ -81,6 +81,12 @@ class ResidualSettings:
     :func:`posetrack._visibility.far_side` reads it) above this in size; 0: in every pose.
     Facing the camera (or away) the detector tells the legs apart, and their labels carry
     the facing. Not in the paper."""
+    leg_labels_margin: float = 1.0
+    """With :attr:`leg_labels_free`: a pair is taken the other way round only where that
+    costs less than its labels as detected divided by this (1: whichever is cheaper). Above 1
+    the fits keep a preference for the detected labels: a pose turned the wrong way round
+    explains exchanged legs as cheaply as the right one explains the labels, and the labels
+    are what pulls a turned track back. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
     (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
@@ -101,6 +107,10 @@ class ResidualSettings:
             raise ValueError(
                 "ResidualSettings.leg_labels_free_sin must be in [0, 1), got "
                 f"{self.leg_labels_free_sin}"
+            )
+        if not self.leg_labels_margin >= 1:
+            raise ValueError(
+                f"ResidualSettings.leg_labels_margin must be >= 1, got {self.leg_labels_margin}"
             )
 
 
@@ -141,11 +151,11 @@ def landmark_residuals(
     legs_free = label_free_legs(params, settings)
     if legs_free is not False:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
-        # the smaller of the two.
+        # the smaller of the two (the exchanged one by the margin).
         x3, x2 = _data_terms(M[LEGS_EXCHANGED], *args)
         cost = jnp.sum(e3 * e3, -1) + jnp.sum(e2 * e2, -1)
         cost_x = jnp.sum(x3 * x3, -1) + jnp.sum(x2 * x2, -1)
-        take = exchanged_leg_pairs(cost, cost_x, legs_free)
+        take = exchanged_leg_pairs(cost, cost_x * settings.leg_labels_margin, legs_free)
         e3 = jnp.where(take[:, None], x3, e3)
         e2 = jnp.where(take[:, None], x2, e2)
     if settings.loss == "l1":

@@ -205,7 +205,8 @@ def landmark_agreement(
     ``legs_free`` (the fits' ``ResidualSettings.leg_labels_free``; False skips it, an array
     gates it): each knee pair and each ankle pair counted whichever way round agrees with
     more of its landmarks, as the fits took them; otherwise a pose fitted to exchanged leg
-    labels would disagree with them.
+    labels would disagree with them. The fits' ``leg_labels_margin`` is not applied: a count
+    of agreeing landmarks has no margin to speak of.
     """
     near = jnp.linalg.norm(keypoints3d - lm.points3d, axis=-1) < distance
     z = jnp.where(lm.has_depth, lm.points3d[:, 2], jnp.nan)

@@ -397,3 +397,34 @@ def test_label_free_legs_only_side_on_with_a_turn_threshold():
     assert leg_cost(80.0, **gated) < 1e-5  # side-on: either way round
     with pytest.raises(ValueError, match="leg_labels_free_sin"):
         ResidualSettings(leg_labels_free_sin=1.0)
+
+
+def test_label_free_legs_keep_the_detected_labels_within_the_margin():
+    """``leg_labels_margin``: a leg pair is taken the other way round only where that is
+    cheaper than the labels as detected by the margin; within it the labels hold."""
+    shape = B.BodyShape.default()
+    true = jnp.asarray(B.facing_camera_params(2.6), jnp.float32)
+    lm = _landmarks(shape, true)
+    swap = np.asarray(B.flip_labels((9, 10, 12, 13)))
+    legs = np.array([9, 10, 12, 13])
+    # Exchanged leg labels, 3 cm off: the exchanged reading costs (3 cm)^2 per keypoint, the
+    # labels as detected about a hip width squared (~40 times more).
+    points = np.asarray(lm.points3d)[swap]
+    points[legs, 0] += 0.03
+    lm = dataclasses.replace(lm, points3d=jnp.asarray(points))
+
+    def leg_residual(**kw):
+        r = landmark_residuals(
+            true, shape, lm, INTR, use3d=jnp.ones(18, bool), use2d=jnp.zeros(18, bool),
+            metres_per_pixel=pixel_scale(true, shape, INTR),
+            settings=ResidualSettings(loss="l2", **kw),
+        )  # fmt: skip
+        return float(np.linalg.norm(np.asarray(r)[legs, :3], axis=-1).max())
+
+    labelled = leg_residual()
+    assert labelled > 0.1
+    for margin in (1.0, 4.0):  # exchanged: 3 cm off
+        assert leg_residual(leg_labels_free=True, leg_labels_margin=margin) < 0.031
+    assert leg_residual(leg_labels_free=True, leg_labels_margin=1000.0) == pytest.approx(labelled)
+    with pytest.raises(ValueError, match="leg_labels_margin"):
+        ResidualSettings(leg_labels_margin=0.5)
