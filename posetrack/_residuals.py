@@ -87,6 +87,10 @@ class ResidualSettings:
     the fits keep a preference for the detected labels: a pose turned the wrong way round
     explains exchanged legs as cheaply as the right one explains the labels, and the labels
     are what pulls a turned track back. Not in the paper."""
+    leg_labels_free_min: int = 0
+    """With :attr:`leg_labels_free`: only on frames with at least this many landmarks on
+    depth (0: on every frame). On a handful of landmarks, mostly legs (a start under heavy
+    occlusion), the leg labels are what orients the body. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
     (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
@@ -107,6 +111,11 @@ class ResidualSettings:
             raise ValueError(
                 "ResidualSettings.leg_labels_free_sin must be in [0, 1), got "
                 f"{self.leg_labels_free_sin}"
+            )
+        if not 0 <= self.leg_labels_free_min <= 18:
+            raise ValueError(
+                "ResidualSettings.leg_labels_free_min must be in [0, 18], got "
+                f"{self.leg_labels_free_min}"
             )
         if not self.leg_labels_margin >= 1:
             raise ValueError(
@@ -148,7 +157,7 @@ def landmark_residuals(
     M = keypoints(shape, params)
     args = (landmarks, intrinsics, use3d, use2d, metres_per_pixel, settings)
     e3, e2 = _data_terms(M, *args)
-    legs_free = label_free_legs(params, settings)
+    legs_free = label_free_legs(params, settings, landmarks.has_depth)
     if legs_free is not False:
         # The same landmarks against the model with its knees and ankles exchanged; per pair,
         # the smaller of the two (the exchanged one by the margin).
@@ -274,17 +283,22 @@ def exchanged_leg_pairs(
 
 
 def label_free_legs(
-    params: Float[Array, 43], settings: ResidualSettings
+    params: Float[Array, 43], settings: ResidualSettings, has_depth: Bool[Array, " kpt"]
 ) -> bool | Bool[Array, ""]:
-    """Whether the knee and ankle pairs are taken whichever way round at ``params``: False
-    (static) without :attr:`ResidualSettings.leg_labels_free`; with
-    :attr:`~ResidualSettings.leg_labels_free_sin` the traced side-on test (the sine of the
-    turn, :func:`posetrack._visibility.turn_sine`, above it in size); else True."""
+    """Whether the knee and ankle pairs are taken whichever way round at ``params`` on a frame
+    whose landmarks on depth are ``has_depth``: False (static) without
+    :attr:`ResidualSettings.leg_labels_free`; else the traced gates that are set (the side-on
+    test of :attr:`~ResidualSettings.leg_labels_free_sin`, the sine of the turn,
+    :func:`posetrack._visibility.turn_sine`, above it in size; at least
+    :attr:`~ResidualSettings.leg_labels_free_min` landmarks on depth), True where none is."""
     if not settings.leg_labels_free:
         return False
+    free = True
     if settings.leg_labels_free_sin > 0:
-        return jnp.abs(turn_sine(params)) > settings.leg_labels_free_sin
-    return True
+        free = jnp.abs(turn_sine(params)) > settings.leg_labels_free_sin
+    if settings.leg_labels_free_min > 0:
+        free = free & (jnp.sum(has_depth) >= settings.leg_labels_free_min)
+    return free
 
 
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:

@@ -359,7 +359,7 @@ def tracker_step(
     regular = kps[: max(N - S, 1)]
     spread = jnp.median(jnp.linalg.norm(regular - kps[best][None], axis=-1), axis=0)
     n3 = jnp.sum(lm.has_depth)
-    legs_free = label_free_legs(chosen, config.fit.residuals)  # as the fits took the legs
+    legs_free = label_free_legs(chosen, config.fit.residuals, lm.has_depth)  # as the fits did
     agreement = landmark_agreement(kps[best], lm, config.consensus_distance, legs_free)
     new_state = TrackState(
         hypotheses=hyps,

@@ -428,3 +428,10 @@ def test_label_free_legs_keep_the_detected_labels_within_the_margin():
     assert leg_residual(leg_labels_free=True, leg_labels_margin=1000.0) == pytest.approx(labelled)
     with pytest.raises(ValueError, match="leg_labels_margin"):
         ResidualSettings(leg_labels_margin=0.5)
+    # leg_labels_free_min: label-free only on frames with that many landmarks on depth (all
+    # 18 here); one fewer and the labels hold.
+    assert leg_residual(leg_labels_free=True, leg_labels_free_min=18) < 0.031
+    lm = dataclasses.replace(lm, has_depth=lm.has_depth.at[4].set(False))
+    assert leg_residual(leg_labels_free=True, leg_labels_free_min=18) == pytest.approx(labelled)
+    with pytest.raises(ValueError, match="leg_labels_free_min"):
+        ResidualSettings(leg_labels_free_min=19)
