@@ -429,7 +429,8 @@ class Tracker:
         # The smoother fits the step's landmarks, so what the step's fits add holds in it too:
         # the depth bounds (TrackerConfig.far_side_bound), the limit on crossed legs
         # (ResidualSettings.leg_cross: its landmarks would cross them again where the detector
-        # exchanged them) and label-free legs (ResidualSettings.leg_labels_free).
+        # exchanged them) and label-free legs (ResidualSettings.leg_labels_free) with the
+        # fits' gates on them (side-on, margin, fewest landmarks).
         own, add = motion.residuals, {}
         if config is not None:
             fits = config.fit.residuals
@@ -438,7 +439,12 @@ class Tracker:
             if fits.leg_cross > own.leg_cross:
                 add["leg_cross"] = fits.leg_cross
             if fits.leg_labels_free and not own.leg_labels_free:
-                add["leg_labels_free"] = True
+                add.update(
+                    leg_labels_free=True,
+                    leg_labels_free_sin=fits.leg_labels_free_sin,
+                    leg_labels_margin=fits.leg_labels_margin,
+                    leg_labels_free_min=fits.leg_labels_free_min,
+                )
         if add:
             residuals = dataclasses.replace(own, **add)
             self._smoother = dataclasses.replace(self._smoother, residuals=residuals)

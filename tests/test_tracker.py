@@ -103,11 +103,14 @@ def test_static_fields_are_declared_static():
 
 
 def test_leg_terms_are_left_out_of_the_initial_fit_only(seq):
-    """The limit on crossed legs and label-free legs hold in the step's fits and the offline
-    smoother; the initial fit takes the detector's leg labels as they are (they tell it the
-    facing: with either term a side view could start turned round)."""
+    """The limit on crossed legs and label-free legs (with their gates) hold in the step's fits
+    and the offline smoother; the initial fit takes the detector's leg labels as they are
+    (they tell it the facing: with either term a side view could start turned round)."""
     fit = TrackerConfig().fit
-    residuals = dataclasses.replace(fit.residuals, leg_cross=10.0, leg_labels_free=True)
+    residuals = dataclasses.replace(
+        fit.residuals, leg_cross=10.0, leg_labels_free=True, leg_labels_free_sin=0.5,
+        leg_labels_margin=4.0, leg_labels_free_min=10,
+    )  # fmt: skip
     config = TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))
     tracker = pt.Tracker(seq.intrinsics, config, mode="offline")
     init = tracker._init_settings.residuals
@@ -116,6 +119,9 @@ def test_leg_terms_are_left_out_of_the_initial_fit_only(seq):
     assert tracker.config.fit.residuals == residuals  # the step's fits keep both
     smoother = tracker._smoother.residuals
     assert smoother.leg_cross == 10.0 and smoother.leg_labels_free
+    # ... with the fits' gates on the label-free legs
+    assert (smoother.leg_labels_free_sin, smoother.leg_labels_margin) == (0.5, 4.0)
+    assert smoother.leg_labels_free_min == 10
 
 
 def test_frames_without_observation_hold_the_pose(seq):
