@@ -52,7 +52,7 @@ with ``reinit_check_tracked=N``), ``oaccX``
 ``leg_labels_free=True``; ``legcrossW-freeside``: label-free in side views only,
 ``leg_labels_free_sin=posetrack._visibility.SIDE_VIEW_SIN``; ``legcrossW-freeM``: label-free with
 ``leg_labels_margin=M``, a pair exchanged only where M times cheaper; a ``-nK`` tail:
-``leg_labels_free_min=K``, label-free on frames with K landmarks on depth or more), ``smoothlegW`` /
+``leg_terms_min=K``, the leg terms on frames with K landmarks on depth or more), ``smoothlegW`` /
 ``smoothlegW-free`` (the same in the motion model's residuals only:
 ``SmoothSettings.residuals``), ``bothways``
 (``SmoothSettings(both_ways=True)``: offline, the recording tracked forwards and backwards
@@ -231,10 +231,10 @@ _NUMBERED = {
 def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
     """``residuals`` with a ``PREFIXW[-free|-freeM|-freeside][-nK]`` variant's leg terms: the
     limit on crossed legs at weight W, label-free legs (``-free``; ``-freeM``: a pair exchanged
-    only where M times cheaper than as labelled), in side views only (``-freeside``), on frames
-    with at least K landmarks on depth (``-nK``)."""
-    weight, _, free = variant[len(prefix):].partition("-")
-    free, _, fewest = free.partition("-n")  # -nK: label-free on frames with K landmarks or more
+    only where M times cheaper than as labelled), in side views only (``-freeside``); both only
+    on frames with at least K landmarks on depth (``-nK``)."""
+    rest, _, fewest = variant[len(prefix):].partition("-n")  # -nK: K landmarks or more
+    weight, _, free = rest.partition("-")
     margin = free.removeprefix("free") if free.startswith("free") else ""
     if margin and margin != "side":
         free = "free"
@@ -246,7 +246,7 @@ def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
             residuals, leg_cross=float(weight), leg_labels_free=free != "",
             leg_labels_free_sin=SIDE_VIEW_SIN if free == "freeside" else 0.0,
             leg_labels_margin=float(margin) if free == "free" and margin else 1.0,
-            leg_labels_free_min=int(fewest or 0),
+            leg_terms_min=int(fewest or 0),
         )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"error: --variants: {variant!r}: {e}") from None

@@ -116,7 +116,7 @@ def _raw_residuals(params, dyn_args: tuple, settings: ResidualSettings):
         params, shape, landmarks, intrinsics,
         use3d=use3d, use2d=use2d, metres_per_pixel=mpp, settings=settings,
     )  # fmt: skip
-    reg = regulariser_residuals(params, start, settings, shape)
+    reg = regulariser_residuals(params, start, settings, shape, landmarks.has_depth)
     return jnp.concatenate([lm.reshape(-1), reg])
 
 

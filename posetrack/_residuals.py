@@ -87,10 +87,11 @@ class ResidualSettings:
     the fits keep a preference for the detected labels: a pose turned the wrong way round
     explains exchanged legs as cheaply as the right one explains the labels, and the labels
     are what pulls a turned track back. Not in the paper."""
-    leg_labels_free_min: int = 0
-    """With :attr:`leg_labels_free`: only on frames with at least this many landmarks on
-    depth (0: on every frame). On a handful of landmarks, mostly legs (a start under heavy
-    occlusion), the leg labels are what orients the body. Not in the paper."""
+    leg_terms_min: int = 0
+    """The leg terms (:attr:`leg_cross`, :attr:`leg_labels_free`) only on frames with at
+    least this many landmarks on depth (0: on every frame). On a handful of landmarks, mostly
+    legs (a start under heavy occlusion), the leg labels as detected are what orients the
+    body, and the limit on crossed legs can hold it turned round. Not in the paper."""
     depth_bounds: bool = False
     """Fit the landmarks' depth bounds (:func:`posetrack._observe.as_bounds`) one-sidedly
     (:func:`landmark_residuals`); off: a bound is ignored (the keypoint is fitted in 2D).
@@ -112,10 +113,10 @@ class ResidualSettings:
                 "ResidualSettings.leg_labels_free_sin must be in [0, 1), got "
                 f"{self.leg_labels_free_sin}"
             )
-        if not 0 <= self.leg_labels_free_min <= 18:
+        if not 0 <= self.leg_terms_min <= 18:
             raise ValueError(
-                "ResidualSettings.leg_labels_free_min must be in [0, 18], got "
-                f"{self.leg_labels_free_min}"
+                "ResidualSettings.leg_terms_min must be in [0, 18], got "
+                f"{self.leg_terms_min}"
             )
         if not self.leg_labels_margin >= 1:
             raise ValueError(
@@ -197,12 +198,14 @@ def regulariser_residuals(
     start_params: Float[Array, 43],
     settings: ResidualSettings,
     shape: BodyShape | None = None,
+    has_depth: Bool[Array, " kpt"] | None = None,
 ) -> Float[Array, " reg"]:
     """``unit_weight (|q_j|^2 - 1)`` for the 10 quaternions, ``prior_weight (x - x_start)``
     and, where ``settings.leg_limits`` > 0, the legs' limits (:func:`leg_limit_residuals`),
     where ``settings.neck_limit`` > 0, the neck's (:func:`neck_limit_residuals`), where
     ``settings.leg_cross`` > 0 the legs' crossing (:func:`leg_cross_residuals`; needs
-    ``shape``)."""
+    ``shape``, and with ``settings.leg_terms_min`` the frame's landmarks on depth
+    ``has_depth``: zero on frames with fewer)."""
     q = params[3:].reshape(NUM_JOINTS, 4)
     unit = settings.unit_weight * (jnp.sum(q * q, axis=-1) - 1.0)
     prior = settings.prior_weight * (params - start_params)
@@ -214,7 +217,12 @@ def regulariser_residuals(
     if settings.leg_cross > 0:
         if shape is None:
             raise ValueError("ResidualSettings.leg_cross > 0 needs the body shape")
-        parts.append(settings.leg_cross * leg_cross_residuals(params, shape))
+        cross = settings.leg_cross * leg_cross_residuals(params, shape)
+        if settings.leg_terms_min > 0:
+            if has_depth is None:
+                raise ValueError("ResidualSettings.leg_terms_min > 0 needs the landmarks")
+            cross = jnp.where(jnp.sum(has_depth) >= settings.leg_terms_min, cross, 0.0)
+        parts.append(cross)
     return jnp.concatenate(parts)
 
 
@@ -290,14 +298,14 @@ def label_free_legs(
     :attr:`ResidualSettings.leg_labels_free`; else the traced gates that are set (the side-on
     test of :attr:`~ResidualSettings.leg_labels_free_sin`, the sine of the turn,
     :func:`posetrack._visibility.turn_sine`, above it in size; at least
-    :attr:`~ResidualSettings.leg_labels_free_min` landmarks on depth), True where none is."""
+    :attr:`~ResidualSettings.leg_terms_min` landmarks on depth), True where none is."""
     if not settings.leg_labels_free:
         return False
     free = True
     if settings.leg_labels_free_sin > 0:
         free = jnp.abs(turn_sine(params)) > settings.leg_labels_free_sin
-    if settings.leg_labels_free_min > 0:
-        free = free & (jnp.sum(has_depth) >= settings.leg_labels_free_min)
+    if settings.leg_terms_min > 0:
+        free = free & (jnp.sum(has_depth) >= settings.leg_terms_min)
     return free
 
 

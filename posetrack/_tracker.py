@@ -430,7 +430,7 @@ class Tracker:
         # the depth bounds (TrackerConfig.far_side_bound), the limit on crossed legs
         # (ResidualSettings.leg_cross: its landmarks would cross them again where the detector
         # exchanged them) and label-free legs (ResidualSettings.leg_labels_free) with the
-        # fits' gates on them (side-on, margin, fewest landmarks).
+        # fits' gates on them (side-on, margin, fewest landmarks on depth).
         own, add = motion.residuals, {}
         if config is not None:
             fits = config.fit.residuals
@@ -443,8 +443,9 @@ class Tracker:
                     leg_labels_free=True,
                     leg_labels_free_sin=fits.leg_labels_free_sin,
                     leg_labels_margin=fits.leg_labels_margin,
-                    leg_labels_free_min=fits.leg_labels_free_min,
                 )
+            if add and fits.leg_terms_min > own.leg_terms_min:
+                add["leg_terms_min"] = fits.leg_terms_min
         if add:
             residuals = dataclasses.replace(own, **add)
             self._smoother = dataclasses.replace(self._smoother, residuals=residuals)

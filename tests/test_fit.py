@@ -14,7 +14,12 @@ from posetrack import _so3 as S
 from posetrack._fit import FitSettings, fit_hypotheses, fit_pose
 from posetrack._init import estimate_shape, initial_pose
 from posetrack._observe import Landmarks, as_bounds, depth_bounds, without_depth
-from posetrack._residuals import ResidualSettings, landmark_residuals, pixel_scale
+from posetrack._residuals import (
+    ResidualSettings,
+    landmark_residuals,
+    pixel_scale,
+    regulariser_residuals,
+)
 
 INTR = Intrinsics.create(fx=525.0, fy=525.0, cx=319.5, cy=239.5, width=640, height=480)
 
@@ -428,10 +433,19 @@ def test_label_free_legs_keep_the_detected_labels_within_the_margin():
     assert leg_residual(leg_labels_free=True, leg_labels_margin=1000.0) == pytest.approx(labelled)
     with pytest.raises(ValueError, match="leg_labels_margin"):
         ResidualSettings(leg_labels_margin=0.5)
-    # leg_labels_free_min: label-free only on frames with that many landmarks on depth (all
+    # leg_terms_min: label-free only on frames with that many landmarks on depth (all
     # 18 here); one fewer and the labels hold.
-    assert leg_residual(leg_labels_free=True, leg_labels_free_min=18) < 0.031
+    assert leg_residual(leg_labels_free=True, leg_terms_min=18) < 0.031
     lm = dataclasses.replace(lm, has_depth=lm.has_depth.at[4].set(False))
-    assert leg_residual(leg_labels_free=True, leg_labels_free_min=18) == pytest.approx(labelled)
-    with pytest.raises(ValueError, match="leg_labels_free_min"):
-        ResidualSettings(leg_labels_free_min=19)
+    assert leg_residual(leg_labels_free=True, leg_terms_min=18) == pytest.approx(labelled)
+    with pytest.raises(ValueError, match="leg_terms_min"):
+        ResidualSettings(leg_terms_min=19)
+    # ... and the limit on crossed legs the same way: a left thigh swung across the right leg
+    # costs at 18 landmarks on depth, nothing at 17.
+    crossed = _with_joint(true, 8, S.matrix_to_quat(S.rz(np.radians(-40))))
+    settings = ResidualSettings(leg_cross=10.0, leg_terms_min=18)
+    full = jnp.ones(18, bool)
+    reg = regulariser_residuals(crossed, crossed, settings, shape, full)
+    assert float(jnp.abs(reg[-2:]).max()) > 0.05
+    reg = regulariser_residuals(crossed, crossed, settings, shape, full.at[4].set(False))
+    assert float(jnp.abs(reg[-2:]).max()) == 0.0

@@ -109,7 +109,7 @@ def test_leg_terms_are_left_out_of_the_initial_fit_only(seq):
     fit = TrackerConfig().fit
     residuals = dataclasses.replace(
         fit.residuals, leg_cross=10.0, leg_labels_free=True, leg_labels_free_sin=0.5,
-        leg_labels_margin=4.0, leg_labels_free_min=10,
+        leg_labels_margin=4.0, leg_terms_min=10,
     )  # fmt: skip
     config = TrackerConfig(fit=dataclasses.replace(fit, residuals=residuals))
     tracker = pt.Tracker(seq.intrinsics, config, mode="offline")
@@ -121,7 +121,7 @@ def test_leg_terms_are_left_out_of_the_initial_fit_only(seq):
     assert smoother.leg_cross == 10.0 and smoother.leg_labels_free
     # ... with the fits' gates on the label-free legs
     assert (smoother.leg_labels_free_sin, smoother.leg_labels_margin) == (0.5, 4.0)
-    assert smoother.leg_labels_free_min == 10
+    assert smoother.leg_terms_min == 10
 
 
 def test_frames_without_observation_hold_the_pose(seq):
