@@ -115,8 +115,7 @@ class ResidualSettings:
             )
         if not 0 <= self.leg_terms_min <= 18:
             raise ValueError(
-                "ResidualSettings.leg_terms_min must be in [0, 18], got "
-                f"{self.leg_terms_min}"
+                f"ResidualSettings.leg_terms_min must be in [0, 18], got {self.leg_terms_min}"
             )
         if not self.leg_labels_margin >= 1:
             raise ValueError(
@@ -221,7 +220,7 @@ def regulariser_residuals(
         if settings.leg_terms_min > 0:
             if has_depth is None:
                 raise ValueError("ResidualSettings.leg_terms_min > 0 needs the landmarks")
-            cross = jnp.where(jnp.sum(has_depth) >= settings.leg_terms_min, cross, 0.0)
+            cross = jnp.where(leg_terms_on(settings, has_depth), cross, 0.0)
         parts.append(cross)
     return jnp.concatenate(parts)
 
@@ -304,9 +303,17 @@ def label_free_legs(
     free = True
     if settings.leg_labels_free_sin > 0:
         free = jnp.abs(turn_sine(params)) > settings.leg_labels_free_sin
+    return free & leg_terms_on(settings, has_depth)
+
+
+def leg_terms_on(
+    settings: ResidualSettings, has_depth: Bool[Array, " kpt"]
+) -> bool | Bool[Array, ""]:
+    """Whether the leg terms hold on a frame whose landmarks on depth are ``has_depth``: True
+    (static) without :attr:`ResidualSettings.leg_terms_min`, else the traced count test."""
     if settings.leg_terms_min > 0:
-        free = free & (jnp.sum(has_depth) >= settings.leg_terms_min)
-    return free
+        return jnp.sum(has_depth) >= settings.leg_terms_min
+    return True
 
 
 def leg_cross_residuals(params: Float[Array, 43], shape: BodyShape) -> Float[Array, 2]:
