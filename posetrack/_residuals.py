@@ -123,6 +123,14 @@ class ResidualSettings:
             )
 
 
+#: The fields of :class:`ResidualSettings` that make up the leg terms (the limit on crossed
+#: legs, label-free legs and their gates): what the offline smoother takes from the step's
+#: fits as one group (``posetrack.Tracker``), so a gate added here cannot be left behind.
+LEG_TERM_FIELDS = (
+    "leg_cross", "leg_labels_free", "leg_labels_free_sin", "leg_labels_margin", "leg_terms_min",
+)  # fmt: skip
+
+
 def pixel_scale(
     start_params: Float[Array, 43], shape: BodyShape, intrinsics: Intrinsics
 ) -> Float[Array, " kpt"]:

@@ -54,6 +54,7 @@ from ._programs import (
     prepare_now,
     program,
 )
+from ._residuals import LEG_TERM_FIELDS
 from ._result import TrackResult, keypoint_confidence
 from ._shapefit import (
     ShapeFitSettings,
@@ -430,22 +431,14 @@ class Tracker:
         # the depth bounds (TrackerConfig.far_side_bound), the limit on crossed legs
         # (ResidualSettings.leg_cross: its landmarks would cross them again where the detector
         # exchanged them) and label-free legs (ResidualSettings.leg_labels_free) with the
-        # fits' gates on them (side-on, margin, fewest landmarks on depth).
+        # fits' gates on them (side-on, margin, fewest landmarks on depth): LEG_TERM_FIELDS.
         own, add = motion.residuals, {}
         if config is not None:
             fits = config.fit.residuals
             if config.far_side_bound and not own.depth_bounds:
                 add["depth_bounds"] = True
-            if fits.leg_cross > own.leg_cross:
-                add["leg_cross"] = fits.leg_cross
-            if fits.leg_labels_free and not own.leg_labels_free:
-                add.update(
-                    leg_labels_free=True,
-                    leg_labels_free_sin=fits.leg_labels_free_sin,
-                    leg_labels_margin=fits.leg_labels_margin,
-                )
-            if add and fits.leg_terms_min > own.leg_terms_min:
-                add["leg_terms_min"] = fits.leg_terms_min
+            if fits.leg_cross > 0 or fits.leg_labels_free:  # the fits' leg terms, as a group
+                add.update({name: getattr(fits, name) for name in LEG_TERM_FIELDS})
         if add:
             residuals = dataclasses.replace(own, **add)
             self._smoother = dataclasses.replace(self._smoother, residuals=residuals)
