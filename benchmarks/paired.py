@@ -20,6 +20,7 @@ seed is largely decided by which clips diverge under that seed.
     python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared  # both answered
     python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed  # a rare event
     python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed --pooled
+    python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared --null 2000
 
 ``--shared``: D and swapped-limb frames over the frames both variants answered (what
 ``decide.py`` records against the first variant it tracks), for a change that answers frames
@@ -32,7 +33,13 @@ whose D, coverage or swapped-limb frames differ, with its change on the frames b
 the frames each answers and the D of the frames only the candidate answers, then the totals.
 With ``--pooled`` one line per run, its tracker seeds pooled (a rule that reads each run as the
 mean of its seeds; ``--min-shared``: the frames a seed's both variants must share for its D
-change to count)."""
+change to count).
+
+``--null FLIPS``: how often the rule's D clauses would fail (or pass) a candidate with no
+effect and this screen's spread (:func:`null_rule`): on occluded side views a run moves by
+tens of mm with any change, and a cell clause at t >= 1 over six cells fails such a candidate
+more often than not (benchmarks/README.md, "How often the rule fails a candidate with no
+effect")."""
 
 from __future__ import annotations
 
@@ -316,6 +323,46 @@ def coverage_clause(runs: list[dict]) -> dict:
             "failing_cells": failing, "cells": cells}  # fmt: skip
 
 
+def null_rule(
+    runs: list[dict],
+    flips: int = 2000,
+    seed: int = 0,
+    cell_mm: float = 1.0,
+    cell_t: tuple[float, ...] = (1.0, 1.5, 2.0, 2.5),
+    mean_t: tuple[float, ...] = (1.0, 2.0),
+) -> dict:
+    """How often the D rule's clauses decide a candidate with **no effect** and this screen's
+    spread. Each run's change is multiplied by a random sign (its two variants exchanged: with
+    no effect either order is as likely), ``flips`` times; per threshold T in ``cell_t``,
+    ``cell_fails`` is the share of flips in which some group x occlusion cell is worse by more
+    than ``cell_mm`` with t >= T (the cell clause, T = 1 in the rules so far), and per T in
+    ``mean_t`` ``mean_passes`` the share in which the mean over all runs is below 0 with
+    t <= -T (the mean clause, T = 1 so far). Runs are read as :func:`run_changes` gives them
+    (each the mean of its tracker seeds)."""
+    cells = [np.array([r["change"] for r in rs]) for _, rs in _groups(runs)[:-1]]
+    every = np.concatenate(cells)
+    rng = np.random.default_rng(seed)
+    fails = {t: 0 for t in cell_t}
+    passes = {t: 0 for t in mean_t}
+    for _ in range(flips):
+        signs = rng.choice((-1.0, 1.0), size=len(every))
+        flipped, at = [], 0
+        for c in cells:
+            flipped.append(c * signs[at : at + len(c)])
+            at += len(c)
+        stats = [_t(c) for c in flipped]
+        for t_min in cell_t:
+            fails[t_min] += any(m > cell_mm and t >= t_min for m, t in stats)
+        mean, t = _t(np.concatenate(flipped))
+        for t_min in mean_t:
+            passes[t_min] += mean < 0 and t <= -t_min
+    return {
+        "flips": flips, "seed": seed, "cell_mm": cell_mm,
+        "cell_fails": {str(t): fails[t] / flips for t in cell_t},
+        "mean_passes": {str(t): passes[t] / flips for t in mean_t},
+    }  # fmt: skip
+
+
 def table(runs: list[dict]) -> list[tuple[str, dict]]:
     """``(label, summary)`` per group and occlusion (in the runs' order), then over all."""
     return [(label, summary(rs)) for label, rs in _groups(runs)]
@@ -374,6 +421,11 @@ def main() -> int:
         help="with --pooled: a seed's D change counts where both answer this many frames (30)",
     )  # fmt: skip
     ap.add_argument("--frames", type=int, default=120, help="frames per clip (decide.py: 120)")
+    ap.add_argument(
+        "--null", type=int, metavar="FLIPS",
+        help="with --candidate: also how often the D rule's cell and mean clauses decide a "
+        "candidate with no effect and this spread (FLIPS random sign flips of the runs' changes)",
+    )  # fmt: skip
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
     for path in a.runs:
@@ -429,9 +481,21 @@ def main() -> int:
         f"{worst['label']} {worst['mean']:+.4f} (t {worst['t']:+.2f})"
         + ("; failing cells: " + ", ".join(failing) if failing else "")
     )
+    null = None
+    if a.null:
+        null = null_rule(runs, flips=a.null)
+        print(
+            f"with no effect and this spread ({a.null} sign flips): some cell worse by more "
+            f"than {null['cell_mm']:g} mm with t >= "
+            + ", ".join(f"{t}: {p:.2f}" for t, p in null["cell_fails"].items())
+            + "; mean below 0 with t <= -"
+            + ", -".join(f"{t}: {p:.2f}" for t, p in null["mean_passes"].items())
+        )
     if a.json:
         doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs,
                "shared": a.shared, "coverage_clause": clause}  # fmt: skip
+        if null is not None:
+            doc["null"] = null
         doc["table"] = [{"label": label, **s} for label, s in rows]
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     return 0

@@ -336,6 +336,29 @@ def test_the_coverage_clause_fails_on_a_consistent_or_a_large_loss_and_not_on_no
     assert paired.coverage_clause(runs(large))["failing_cells"] == ["side, occlusion 2"]
 
 
+def test_the_null_rule_counts_how_often_sign_flips_fail_a_cell_or_pass_the_mean():
+    # Each run's change flipped in sign at random: with every run of a cell at +3 mm the cell
+    # fails only where no sign flipped (1/4 with two runs), the mean passes only where both
+    # did (1/4); two such cells: 1 - (3/4)^2. A cell at (+3, +1) has t 2 at its worst, so it
+    # fails 1/4 of flips at t >= 2 and never at t >= 2.5.
+    paired = load("paired")
+
+    def runs(cells):
+        return [{"group": g, "occ": 0, "change": c} for g, cs in cells for c in cs]
+
+    one = paired.null_rule(runs([("side", (3.0, 3.0))]), flips=4000, cell_t=(1.0,))
+    assert one["cell_fails"]["1.0"] == pytest.approx(0.25, abs=0.03)
+    assert one["mean_passes"]["1.0"] == pytest.approx(0.25, abs=0.03)
+    two = paired.null_rule(runs([("side", (3.0, 3.0)), ("wide", (3.0, 3.0))]), flips=4000)
+    assert two["cell_fails"]["1.0"] == pytest.approx(1 - 0.75**2, abs=0.03)
+    t = paired.null_rule(runs([("side", (3.0, 1.0))]), flips=4000, cell_t=(1.0, 2.0, 2.5))
+    assert t["cell_fails"]["1.0"] == pytest.approx(0.25, abs=0.03)
+    assert t["cell_fails"]["2.0"] == pytest.approx(0.25, abs=0.03)
+    assert t["cell_fails"]["2.5"] == 0.0
+    # the 1 mm floor: a cell at (+1, +1) is never worse by more than 1 mm
+    assert paired.null_rule(runs([("side", (1.0, 1.0))]), flips=500)["cell_fails"]["1.0"] == 0
+
+
 def test_the_paired_change_reads_a_missing_acceleration_as_nan():
     # records written before the acceleration error was recorded still join; their mean is nan
     paired = load("paired")
