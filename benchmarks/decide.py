@@ -100,6 +100,7 @@ import argparse
 import dataclasses
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 from accuracy import REAL as REPORTED_REAL  # the reported real clips (CMU: the late group)
@@ -233,7 +234,7 @@ def _leg_terms(variant: str, prefix: str, residuals, allowed: tuple[str, ...]):
     limit on crossed legs at weight W, label-free legs (``-free``; ``-freeM``: a pair exchanged
     only where M times cheaper than as labelled), in side views only (``-freeside``); both only
     on frames with at least K landmarks on depth (``-nK``)."""
-    rest, _, fewest = variant[len(prefix):].partition("-n")  # -nK: K landmarks or more
+    rest, _, fewest = variant[len(prefix) :].partition("-n")  # -nK: K landmarks or more
     weight, _, free = rest.partition("-")
     margin = free.removeprefix("free") if free.startswith("free") else ""
     if margin and margin != "side":
@@ -430,6 +431,32 @@ _RADII = tuple(f for f in pt.ShapeFitSettings().fields if f.endswith("_radius"))
 _SECOND_PASS = "second_pass"
 
 
+def recorded(out: str, names: list[str]) -> set[tuple]:
+    """``(group, seed, occ, tracker seed)`` of the records in the JSON-lines file ``out`` (none
+    if it does not exist) that hold every variant of ``names``. A last line cut off mid-write
+    (the process killed) is removed from the file, so appending goes on from a whole record; a
+    bad line anywhere else is an error naming the file and line."""
+    path = Path(out)
+    if not path.is_file():
+        return set()
+    lines = path.read_text().splitlines(keepends=True)
+    done = set()
+    for i, line in enumerate(lines):
+        try:
+            rec = json.loads(line)
+        except json.JSONDecodeError:
+            if i == len(lines) - 1 and not line.endswith("\n"):
+                tmp = path.with_name(path.name + ".tmp")
+                tmp.write_text("".join(lines[:-1]))
+                tmp.replace(path)
+                print(f"{out}: removed a last line cut off mid-write", flush=True)
+                break
+            raise SystemExit(f"error: {out}, line {i + 1}: not a JSON record") from None
+        if all(name in rec for name in names):
+            done.add((rec["group"], rec["seed"], rec["occ"], rec["tseed"]))
+    return done
+
+
 def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     """Track each ``((group, seed, motion, variety), occlusion, tracker seed)`` of ``todo``
     with every variant (name -> ``Tracker`` keywords) and append one JSON line per item to
@@ -437,9 +464,17 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
     dropped, seconds, the step's median ms a frame, the mean Delta of the tracked frames,
     online the motion model's median ms a frame, and for every variant after the first its
     D and swapped-limb frames and the first variant's over the frames both answered
-    (``"shared"``, :func:`tune.shared_measures`; ``paired.py --shared`` reads them)."""
+    (``"shared"``, :func:`tune.shared_measures`; ``paired.py --shared`` reads them).
+
+    Items already in ``out`` with every variant are skipped (:func:`recorded`): a screen cut
+    short (a session's end, a killed process) resumes where it stopped."""
+    done = recorded(out, list(variants))
+    if done:
+        print(f"{out}: {len(done)} runs already recorded with every variant, skipped", flush=True)
     with open(out, "a") as f:
         for (group, seed, motion, variety), occ, ts in todo:
+            if (group, seed, occ, ts) in done:
+                continue
             seq = generate_clip(seed, motion, variety, occ)
             rec = {"group": group, "seed": seed, "motion": motion, "occ": occ, "tseed": ts}
             first = None  # the first variant's keypoints: the others' "shared" baseline
@@ -474,7 +509,9 @@ def track(todo: list, variants: dict[str, dict], mode: str, out: str) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("out", help="JSON lines, appended to")
+    ap.add_argument(
+        "out", help="JSON lines, appended to; runs already there with every variant are skipped"
+    )
     ap.add_argument("--variants", default="kept,settle1")
     ap.add_argument("--mode", choices=("offline", "online", "per-frame"), default="offline")
     ap.add_argument("--tracker-seeds", default="0,1")

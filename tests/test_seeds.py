@@ -111,6 +111,33 @@ def test_the_late_cmu_clips_start_after_the_report_clips_end(seeds):
         assert clip.info["looped"] is False, name
 
 
+def test_a_screen_cut_short_resumes_from_its_whole_records(tmp_path, monkeypatch):
+    """``decide.py``: the runs already in the output with every variant are skipped, a last
+    line cut off mid-write is removed, a bad line elsewhere is an error naming it."""
+    decide = load("decide")
+    out = tmp_path / "screen.jsonl"
+    both = {"group": "walk_across", "seed": 2958, "occ": 0, "tseed": 0, "default": {}, "v": {}}
+    one = {**both, "tseed": 1}
+    del one["v"]  # a record of an earlier screen without the candidate: not this one's
+    out.write_text(json.dumps(both) + "\n" + json.dumps(one) + "\n" + '{"group": "wal')
+    assert decide.recorded(str(out), ["default", "v"]) == {("walk_across", 2958, 0, 0)}
+    assert out.read_text().splitlines() == [json.dumps(both), json.dumps(one)]
+
+    def no_clip(*args):
+        raise AssertionError("a recorded run was tracked again")
+
+    monkeypatch.setattr(decide, "generate_clip", no_clip)
+    clip = ("walk_across", 2958, "walk_across", "wide")
+    decide.track([(clip, 0, 0)], {"default": {}, "v": {}}, "offline", str(out))
+    assert len(out.read_text().splitlines()) == 2  # nothing appended
+    with pytest.raises(AssertionError, match="tracked again"):  # tseed 1 lacks the candidate
+        decide.track([(clip, 0, 1)], {"default": {}, "v": {}}, "offline", str(out))
+    out.write_text("not json\n" + json.dumps(both) + "\n")
+    with pytest.raises(SystemExit, match="screen.jsonl, line 1: not a JSON record"):
+        decide.recorded(str(out), ["default"])
+    assert decide.recorded(str(tmp_path / "none.jsonl"), ["default"]) == set()
+
+
 def test_the_decision_runs_run_on_tuning_seeds_only(seeds):
     decide = load("decide")
     used = [seed for _, seed, _, _ in decide.clips()]
