@@ -340,16 +340,13 @@ def null_rule(
     t <= -T (the mean clause, T = 1 so far). Runs are read as :func:`run_changes` gives them
     (each the mean of its tracker seeds)."""
     cells = [np.array([r["change"] for r in rs]) for _, rs in _groups(runs)[:-1]]
-    every = np.concatenate(cells)
+    bounds = np.cumsum([len(c) for c in cells])[:-1]
     rng = np.random.default_rng(seed)
     fails = {t: 0 for t in cell_t}
     passes = {t: 0 for t in mean_t}
     for _ in range(flips):
-        signs = rng.choice((-1.0, 1.0), size=len(every))
-        flipped, at = [], 0
-        for c in cells:
-            flipped.append(c * signs[at : at + len(c)])
-            at += len(c)
+        signs = np.split(rng.choice((-1.0, 1.0), size=len(runs)), bounds)
+        flipped = [c * s for c, s in zip(cells, signs)]
         stats = [_t(c) for c in flipped]
         for t_min in cell_t:
             fails[t_min] += any(m > cell_mm and t >= t_min for m, t in stats)
