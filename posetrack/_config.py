@@ -163,9 +163,11 @@ class TrackerConfig(eqx.Module):
     (2026-12-03, 48 fresh tuning runs: D +1.36 mm, occluded side views +12 mm, swapped-limb
     frames -15 %; benchmarks/README.md, "The far2d screen"): with an occluder on the near
     side too few 3D landmarks remain. Not in the paper."""
-    far_side_bound: bool = eqx.field(default=False, static=True)
-    """Off by default. In a side view (turned more than ``bound_turn_sin``) the far side's
-    shoulder, elbow, wrist, hip, eye and ear and the neck
+    far_side_bound: bool | None = eqx.field(default=None, static=True)
+    """``None`` (the default): decided by the tracker's mode (:meth:`for_mode`, which
+    :class:`Tracker` applies): **on online** (with :attr:`bound_trusted`), off offline and
+    per-frame; ``True`` / ``False``: in every mode. In a side view (turned more than
+    ``bound_turn_sin``) the far side's shoulder, elbow, wrist, hip, eye and ear and the neck
     (:func:`posetrack._visibility.side_view_bounds`; not the far knee and ankle, which the
     camera sees between the legs) are fitted by their 2D detections, and
     their lifted depth becomes a one-sided bound (:func:`posetrack._observe.as_bounds`): the
@@ -173,15 +175,22 @@ class TrackerConfig(eqx.Module):
     it, and they leave the track-loss test's agreement share (they disagree with any right
     pose). Unlike ``far_side_2d`` their depth still constrains the fit. Turns on
     ``fit.residuals.depth_bounds`` (and the offline smoother's, in ``Tracker``). Not with
-    ``far_side_2d``. Not in the paper."""
+    ``far_side_2d``. The online default since 2026-12-07 (with ``bound_trusted``): its online
+    screen on fresh tuning seeds (76 runs x 3 tracker seeds, a rule written before its runs)
+    gained D -3.6 mm (t -3.1; side views -13 mm) and its online report stage REPORT_STAGE
+    (benchmarks/README.md, "`bound_trusted` online, under the rule of 2026-12-07"); offline it
+    stays off (its offline report stage failed, see ``bound_trusted``). Not in the paper."""
     bound_turn_sin: float = 0.75
     """``far_side_bound`` applies while the previous output is turned by more than this sine
     of its angle from facing the camera (0.75: 49 degrees). At ``far_side``'s 0.5 (30
     degrees) the far side is still mostly seen, and treating its depth as a bound let the
     body drift back (tuning clips 1277, 1287: +20 and +15 mm; both unchanged at 0.75, which
     keeps the gains of 1211, 1276 and 1286; 0.87 lost 1286's). Traced."""
-    bound_trusted: bool = eqx.field(default=False, static=True)
-    """Off by default. ``far_side_bound`` applies only while the last frame with an observation
+    bound_trusted: bool | None = eqx.field(default=None, static=True)
+    """``None`` (the default): decided by the mode (:meth:`for_mode`): on online wherever the
+    bound is on, off offline and per-frame (an explicit ``far_side_bound=True`` offline is
+    ungated, as before 2026-12-07); ``True`` needs ``far_side_bound=True``.
+    ``far_side_bound`` applies only while the last frame with an observation
     passed the track-loss test (its Delta at most ``lost_delta`` and its agreement at least
     ``lost_agreement``: the frame's status, :attr:`posetrack.TrackState.trusted`). The bound trusts
     the previous pose's facing to say which side is far; a pose that failed the test (a track coming
@@ -456,10 +465,16 @@ class TrackerConfig(eqx.Module):
                 f"TrackerConfig.limb_hypotheses must be in 0..4 and smaller than the number of "
                 f"hypotheses ({self.n}), got {self.limb_hypotheses}"
             )
-        if self.bound_trusted and not self.far_side_bound:
+        for name in ("far_side_bound", "bound_trusted"):
+            if getattr(self, name) not in (None, True, False):
+                raise ValueError(
+                    f"TrackerConfig.{name} must be True, False or None (by the tracker's mode), "
+                    f"got {getattr(self, name)!r}"
+                )
+        if self.bound_trusted and self.far_side_bound is not True:
             raise ValueError(
                 "TrackerConfig.bound_trusted gates far_side_bound; set far_side_bound=True too "
-                "(got bound_trusted=True, far_side_bound=False)"
+                f"(got bound_trusted=True, far_side_bound={self.far_side_bound!r})"
             )
         if self.far_side_2d and self.far_side_bound:
             raise ValueError(
@@ -510,6 +525,27 @@ class TrackerConfig(eqx.Module):
     def num_limb_hypotheses(self) -> int:
         """Limb hypotheses actually used (0 for LVM)."""
         return 0 if self.n == 1 else self.limb_hypotheses
+
+    def for_mode(self, mode: str) -> TrackerConfig:
+        """This configuration with the fields left to the tracker's mode (``None``) decided for
+        ``mode`` (``"offline"``, ``"online"`` or ``"per-frame"``): ``far_side_bound`` on online
+        (off with ``far_side_2d``, its alternative), off otherwise; ``bound_trusted`` on where
+        the bound is on and the mode is online. Fields given stay as given. :class:`Tracker`
+        and :func:`track_many` call it; the result is what their results' ``config`` shows."""
+        if mode not in ("offline", "online", "per-frame"):
+            raise ValueError(
+                f"TrackerConfig.for_mode: mode must be 'offline', 'online' or 'per-frame', "
+                f"got {mode!r}"
+            )
+        bound = self.far_side_bound
+        if bound is None:
+            bound = mode == "online" and not self.far_side_2d
+        trusted = self.bound_trusted
+        if trusted is None:
+            trusted = bound and mode == "online"
+        if (bound, trusted) == (self.far_side_bound, self.bound_trusted):
+            return self
+        return self.replace(far_side_bound=bound, bound_trusted=trusted)
 
     def replace(self, **changes) -> TrackerConfig:
         """A copy with ``changes`` applied (validated like the constructor)."""

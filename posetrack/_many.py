@@ -115,7 +115,8 @@ def track_many(
             intr, chunked = tracker.intrinsics, tracker._chunked
             key = (intr.width, intr.height, chunked)
             if key not in batchers:
-                batchers[key] = (ChunkBatcher if chunked else StepBatcher)(config, batch)
+                # The tracker's configuration as its mode runs it (TrackerConfig.for_mode).
+                batchers[key] = (ChunkBatcher if chunked else StepBatcher)(tracker.config, batch)
             return batchers[key]
 
     def report(done, total, postfix):

@@ -424,6 +424,12 @@ class Tracker:
         # The lag is the online mode's alone: offline and per-frame poses wait for nothing.
         lag = int(lag) if mode == "online" else 0
         self.mode, self.lag, self.motion, self.fps = mode, lag, motion, float(fps)
+        # The configuration as this mode runs it (TrackerConfig.for_mode: the fields left to
+        # the mode, far_side_bound and bound_trusted, decided).
+        config = config or TrackerConfig()
+        if not isinstance(config, TrackerConfig):
+            raise TypeError(f"Tracker: config must be posetrack.TrackerConfig, got {type(config)}")
+        config = config.for_mode(mode)
         # What the motion model's compiled programs see: ``both_ways`` is the run's business,
         # not theirs (one program either way, and one cache entry for ``posetrack warmup``).
         self._smoother = dataclasses.replace(motion, both_ways=False)
@@ -432,13 +438,11 @@ class Tracker:
         # (ResidualSettings.leg_cross: its landmarks would cross them again where the detector
         # exchanged them) and label-free legs (ResidualSettings.leg_labels_free) with the
         # fits' gates on them (side-on, margin, fewest landmarks on depth): LEG_TERM_FIELDS.
-        own, add = motion.residuals, {}
-        if config is not None:
-            fits = config.fit.residuals
-            if config.far_side_bound and not own.depth_bounds:
-                add["depth_bounds"] = True
-            if fits.leg_cross > 0 or fits.leg_labels_free:  # the fits' leg terms, as a group
-                add.update({name: getattr(fits, name) for name in LEG_TERM_FIELDS})
+        own, add, fits = motion.residuals, {}, config.fit.residuals
+        if config.far_side_bound and not own.depth_bounds:
+            add["depth_bounds"] = True
+        if fits.leg_cross > 0 or fits.leg_labels_free:  # the fits' leg terms, as a group
+            add.update({name: getattr(fits, name) for name in LEG_TERM_FIELDS})
         if add:
             residuals = dataclasses.replace(own, **add)
             self._smoother = dataclasses.replace(self._smoother, residuals=residuals)
@@ -496,11 +500,7 @@ class Tracker:
             )
         self.person_rule = person
         self.follow = follow
-        self.config = config or TrackerConfig()
-        if not isinstance(self.config, TrackerConfig):
-            raise TypeError(
-                f"Tracker: config must be posetrack.TrackerConfig, got {type(self.config)}"
-            )
+        self.config = config
         self.intrinsics = jax.tree.map(device_f32, intrinsics)
         self.depth_scale = float(depth_scale)
         self.shape = (

@@ -65,6 +65,27 @@ def test_track_many_equals_single_runs(seqs):
         assert d_many < 0.1  # and both actually track
 
 
+def test_track_many_batches_with_the_configuration_its_mode_runs(seqs, monkeypatch):
+    """The batched step runs the configuration each tracker runs (``TrackerConfig.for_mode``:
+    online, the far side's bound, left to the mode by the default, is on), not the one given:
+    a batcher built from the given one would refuse every sequence (or run another program).
+    The batcher is replaced by one that records its configuration and stops the run."""
+    made = []
+
+    class Recorder:
+        def __init__(self, config, batch):
+            made.append(config)
+            raise RuntimeError("recorded")
+
+    monkeypatch.setattr("posetrack._many.StepBatcher", Recorder)
+    s = seqs[0]
+    out = pt.track_many([(s.intrinsics, s.depth, s.keypoints2d, s.confidence)], mode="online",
+                        errors="return")  # fmt: skip
+    assert isinstance(out[0], RuntimeError) and len(made) == 1
+    assert made[0].far_side_bound is True and made[0].bound_trusted is True
+    assert made[0] == pt.TrackerConfig().for_mode("online")
+
+
 def test_track_many_both_ways_equals_single_runs_and_counts_both_passes(seqs):
     """Offline with ``SmoothSettings(both_ways=True)`` inside a batch: the backward pass's
     chunks are batched like the forward's, each sequence gets what it gets alone, and the

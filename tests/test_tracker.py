@@ -478,6 +478,40 @@ def test_paper_config_is_the_paper_method_alone():
     assert set(pt.BEYOND_THE_PAPER) <= set(TrackerConfig.__dataclass_fields__)
 
 
+def test_the_far_sides_bound_is_decided_by_the_mode_unless_given():
+    """``far_side_bound`` and ``bound_trusted`` left at ``None`` are decided by the tracker's
+    mode (``TrackerConfig.for_mode``): the gated bound online, nothing offline and per-frame;
+    values given stay in every mode, ``far_side_2d`` (its alternative) keeps it off, and the
+    paper's method never gets it. ``Tracker.config`` is the decided configuration."""
+    default = TrackerConfig()
+    assert default.far_side_bound is None and default.bound_trusted is None
+    online = default.for_mode("online")
+    assert online.far_side_bound is True and online.bound_trusted is True
+    assert online.fit.residuals.depth_bounds  # what the bound turns on in the fits
+    for mode in ("offline", "per-frame"):
+        off = default.for_mode(mode)
+        assert off.far_side_bound is False and off.bound_trusted is False
+        assert not off.fit.residuals.depth_bounds
+    given = TrackerConfig(far_side_bound=True)
+    assert given.for_mode("offline").bound_trusted is False  # ungated offline, as before
+    assert given.for_mode("online").bound_trusted is True
+    assert TrackerConfig(far_side_bound=False).for_mode("online").far_side_bound is False
+    assert TrackerConfig(far_side_2d=True).for_mode("online").far_side_bound is False
+    ungated = TrackerConfig(far_side_bound=True, bound_trusted=False).for_mode("online")
+    assert ungated.bound_trusted is False
+    assert TrackerConfig.paper("lvm").for_mode("online").far_side_bound is False
+    assert TrackerConfig.paper("mht_h").for_mode("online").is_paper()
+    with pytest.raises(ValueError, match="mode must be"):
+        default.for_mode("live")
+    with pytest.raises(ValueError, match="far_side_bound must be True, False or None"):
+        TrackerConfig(far_side_bound="online")
+    with pytest.raises(ValueError, match="bound_trusted gates far_side_bound"):
+        TrackerConfig(bound_trusted=True)
+    intr = pt.Intrinsics.create(fx=300.0, fy=300.0, cx=80.0, cy=60.0, width=160, height=120)
+    assert pt.Tracker(intr, mode="online").config == online
+    assert pt.Tracker(intr, default, mode="offline").config.far_side_bound is False
+
+
 _COUNT_LOWERINGS = """
 import traceback
 import jax.monitoring
