@@ -177,7 +177,8 @@ class TrackerConfig(eqx.Module):
     ``fit.residuals.depth_bounds`` (and the offline smoother's, in ``Tracker``). Not with
     ``far_side_2d``. The online default since 2026-12-07 (with ``bound_trusted``): its online
     screen on fresh tuning seeds (76 runs x 3 tracker seeds, a rule written before its runs)
-    gained D -3.6 mm (t -3.1; side views -13 mm) and its online report stage REPORT_STAGE
+    gained D -3.6 mm (t -3.1; side views -13 mm), and its online report stage (the four report
+    sets, 96 runs x 2 seeds) passed with -0.3 mm (wide clean -2.9, real motion +0.2 to +1.6)
     (benchmarks/README.md, "`bound_trusted` online, under the rule of 2026-12-07"); offline it
     stays off (its offline report stage failed, see ``bound_trusted``). Not in the paper."""
     bound_turn_sin: float = 0.75
@@ -201,8 +202,9 @@ class TrackerConfig(eqx.Module):
     coverage clause (benchmarks/README.md, "`far_side_bound` behind a trusted pose only"). Under a
     coverage clause judged like D a third screen passed (-2.3 mm, t -2.2) and the offline report
     stage failed by that clause's cell condition at its edge (real motion, wide, occluded: coverage
-    -0.0254 with t -1.50; D -0.6 mm overall, wide clean 45.6 -> 42.0), so it stays off
-    ("`bound_trusted` under a coverage clause judged like D"). With ``reinit_partial_axes``
+    -0.0254 with t -1.50; D -0.6 mm overall, wide clean 45.6 -> 42.0), so it stays off offline
+    ("`bound_trusted` under a coverage clause judged like D"); online it is the default since
+    2026-12-07 (``far_side_bound``). With ``reinit_partial_axes``
     closing those drops (2026-12-07, 60 fresh runs x 3 seeds, offline) coverage rose (+0.97 %)
     but D did not move enough (-0.75 mm, t -0.66; CMU occluded +3.9): "The trusted bound with
     the side view's restart, offline". Not in the paper."""
