@@ -34,8 +34,10 @@ Variants: ``default`` (every setting the mode's default), ``inbatch``
 (``TrackerConfig(consensus_in_batch=True)``), ``norefit`` (``consensus_refit=False``),
 ``alllm`` (``TrackerConfig(all_landmarks_hypothesis=True)``), ``far2d``
 (``TrackerConfig(far_side_2d=True)``), ``farbound`` (``TrackerConfig(far_side_bound=True)``),
-``farboundS`` (the same with ``bound_turn_sin=S``), ``farboundT`` (the bound only while the
-previous output passed the track-loss test: ``bound_trusted=True``), ``farboundT-axesN`` (that
+``farboundS`` (the same with ``bound_turn_sin=S``; both ungated, ``bound_trusted=False``, in
+every mode), ``farboundT`` (the bound only while the previous output passed the track-loss
+test: ``bound_trusted=True``; online the default since 2026-12-07), ``nobound``
+(``far_side_bound=False``: online, the default before 2026-12-07), ``farboundT-axesN`` (that
 with ``axesN``), ``axesN``
 (``reinit_partial_frames=N`` with ``reinit_partial_axes=True``: a restart without a
 left/right pair from the last tracked pose's facing only),
@@ -271,8 +273,10 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"config": pt.TrackerConfig(consensus_in_batch=True)}
     if variant == "far2d":  # before the numbered "far" variants
         return {"config": pt.TrackerConfig(far_side_2d=True)}
-    if variant == "farbound":
-        return {"config": pt.TrackerConfig(far_side_bound=True)}
+    if variant == "farbound":  # ungated in every mode (online the default gates it)
+        return {"config": pt.TrackerConfig(far_side_bound=True, bound_trusted=False)}
+    if variant == "nobound":  # online: the default before 2026-12-07
+        return {"config": pt.TrackerConfig(far_side_bound=False)}
     if variant == "farboundT":  # the bound only behind a pose that passed the loss test
         return {"config": pt.TrackerConfig(far_side_bound=True, bound_trusted=True)}
     if variant.startswith("farboundT-axes") and variant[14:].isdigit():
@@ -287,7 +291,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
     if variant.startswith("farbound"):  # farboundS: the bound from a turn of sine S
         try:
             turn = float(variant[len("farbound") :])
-            return {"config": pt.TrackerConfig(far_side_bound=True, bound_turn_sin=turn)}
+            config = pt.TrackerConfig(far_side_bound=True, bound_trusted=False, bound_turn_sin=turn)
+            return {"config": config}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     if variant.startswith("axes") and variant[4:].isdigit():
@@ -419,7 +424,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
         "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
-        "'axesN', 'farX', "
+        "'nobound', 'axesN', 'farX', "
         "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'turnsX', 'sides:G+G...'"
     )
