@@ -26,6 +26,10 @@ from ._score import DEFAULT_D_M
 
 METHODS: tuple[str, ...] = ("lvm", "mht_r", "mht_g", "mht_h")
 
+#: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
+#: causal motion model with a fixed lag, or each frame on its own (the paper).
+MODES: tuple[str, ...] = ("offline", "online", "per-frame")
+
 #: LM steps per frame of each MHT hypothesis' fit (``TrackerConfig.fit``'s default for MHT).
 MHT_FIT_STEPS = 4
 
@@ -534,7 +538,7 @@ class TrackerConfig(eqx.Module):
         (off with ``far_side_2d``, its alternative), off otherwise; ``bound_trusted`` on where
         the bound is on and the mode is online. Fields given stay as given. :class:`Tracker`
         and :func:`track_many` call it; the result is what their results' ``config`` shows."""
-        if mode not in ("offline", "online", "per-frame"):
+        if mode not in MODES:
             raise ValueError(
                 f"TrackerConfig.for_mode: mode must be 'offline', 'online' or 'per-frame', "
                 f"got {mode!r}"

@@ -38,7 +38,7 @@ from ._batcher import Pending, resolve
 from ._bothways import Reindexed, fuse_smoothed, fuse_weights
 from ._camera import Intrinsics, project_host
 from ._chunk import status_limits, step_chunk
-from ._config import TrackerConfig
+from ._config import MODES, TrackerConfig
 from ._depthobs import NO_FLOOR, fit_floor_plane, tracker_landmarks, tracker_observation
 from ._duplicates import DuplicateFilter, DuplicateSettings
 from ._fit import FitSettings, fit_pose
@@ -122,10 +122,6 @@ class _Refining:
     first: tuple | None
     at: int
 
-
-#: How :meth:`Tracker.run` makes its poses: the motion model over the whole recording, the
-#: causal motion model with a fixed lag, or each frame on its own (the paper).
-MODES = ("offline", "online", "per-frame")
 
 #: The online mode's default lag, frames (100 ms at 30 fps): each pose is published once the
 #: ``ONLINE_LAG`` frames after it are seen. The smallest lag whose poses beat a Gaussian filter
