@@ -21,6 +21,7 @@ seed is largely decided by which clips diverge under that seed.
     python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed  # a rare event
     python benchmarks/paired.py RUNS.jsonl ... --candidate alone30 --changed --pooled
     python benchmarks/paired.py RUNS.jsonl ... --candidate follow0.4 --shared --null 2000
+    python benchmarks/paired.py RUNS.jsonl ... --candidate X --shared --null 4000 --rule screen
 
 ``--shared``: D and swapped-limb frames over the frames both variants answered (what
 ``decide.py`` records against the first variant it tracks), for a change that answers frames
@@ -39,7 +40,11 @@ change to count).
 effect and this screen's spread (:func:`null_rule`): on occluded side views a run moves by
 tens of mm with any change, and a cell clause at t >= 1 over six cells fails such a candidate
 more often than not (benchmarks/README.md, "How often the rule fails a candidate with no
-effect")."""
+effect").
+
+``--rule screen|report``: the verdict of the rule of 2026-12-07 (:func:`rule_verdict`), each
+clause's outcome printed and stored with ``--json``; ``--wall RATIO`` adds the wall-time clause
+(the median time per run, candidate over baseline)."""
 
 from __future__ import annotations
 
@@ -323,6 +328,49 @@ def coverage_clause(runs: list[dict]) -> dict:
             "failing_cells": failing, "cells": cells}  # fmt: skip
 
 
+#: The stages of the rule of 2026-12-07 (benchmarks/README.md, "How often the rule fails a
+#: candidate with no effect"; its report stage as in "`bound_trusted` online, under the rule of
+#: 2026-12-07"): a screen on fresh tuning seeds, then the report sets.
+RULE_STAGES = ("screen", "report")
+
+
+def rule_verdict(
+    runs: list[dict], records: list[dict] | None = None, stage: str = "screen",
+    wall_max: float | None = None, base: str = "default", candidate: str | None = None,
+) -> dict:
+    """The verdict of the rule of 2026-12-07 on ``runs`` (:func:`run_changes`). A screen
+    passes iff the mean change over all runs is below 0 with t <= -2; no group x occlusion
+    cell is worse by more than 1 mm with t >= 2; the swapped-limb frames do not rise; the mean
+    acceleration error rises by at most 10 %; and :func:`coverage_clause` holds. The report
+    stage asks the mean below 0 (any t), the same cell clause, swapped-limb frames up by at
+    most 10 %, and the rest as the screen. ``wall_max``: also the median over ``records``
+    (:func:`load`) of the candidate's wall time per run (``"s"``) at most that many times the
+    baseline's (issue 12's online budget: 1.3)."""
+    if stage not in RULE_STAGES:
+        raise ValueError(f"stage must be one of {RULE_STAGES}, got {stage!r}")
+    rows = table(runs)
+    every = rows[-1][1]
+    mean_ok = every["change"] < 0 and (stage == "report" or every["t"] <= -2)
+    failing = [label for label, s in rows[:-1] if s["change"] > 1.0 and s["t"] >= 2]
+    swap_limit = every["base_swaps"] * (1.10 if stage == "report" else 1.0)
+    clauses = {
+        "mean": mean_ok,
+        "cells": not failing,
+        "swaps": every["candidate_swaps"] <= swap_limit,
+        "accel": every["candidate_accel"] <= 1.10 * every["base_accel"],
+        "coverage": coverage_clause(runs)["holds"],
+    }
+    out = {"stage": stage, "failing_cells": failing}
+    if wall_max is not None:
+        if records is None or candidate is None:
+            raise ValueError("wall_max needs the records and the candidate's name")
+        ratio = float(np.median([r[candidate]["s"] for r in records])
+                      / np.median([r[base]["s"] for r in records]))  # fmt: skip
+        out["wall_ratio"] = ratio
+        clauses["wall"] = ratio <= wall_max
+    return {**out, "clauses": clauses, "passed": all(clauses.values())}
+
+
 def null_rule(
     runs: list[dict],
     flips: int = 2000,
@@ -423,6 +471,15 @@ def main() -> int:
         help="with --candidate: also how often the D rule's cell and mean clauses decide a "
         "candidate with no effect and this spread (FLIPS random sign flips of the runs' changes)",
     )  # fmt: skip
+    ap.add_argument(
+        "--rule", choices=RULE_STAGES,
+        help="with --candidate: print the verdict of the rule of 2026-12-07 at this stage "
+        "(benchmarks/README.md; rule_verdict) and store it with --json",
+    )  # fmt: skip
+    ap.add_argument(
+        "--wall", type=float, metavar="RATIO",
+        help="with --rule: also the median wall time per run at most RATIO x the baseline's",
+    )  # fmt: skip
     ap.add_argument("--json", help="write the runs and the table here")
     a = ap.parse_args()
     for path in a.runs:
@@ -451,7 +508,10 @@ def main() -> int:
         return _print_pooled(load(a.runs), a.base, a.candidate, a.frames, a.min_shared, a.json)
     if a.changed:
         return _print_changed(load(a.runs), a.base, a.candidate, a.frames, a.json)
-    runs = run_changes(load(a.runs), a.base, a.candidate, shared=a.shared)
+    if a.wall is not None and a.rule is None:
+        ap.error("--wall goes with --rule")
+    records = load(a.runs)
+    runs = run_changes(records, a.base, a.candidate, shared=a.shared)
     rows = table(runs)
     print(
         f"{a.candidate} - {a.base}, D mm (13 joints"
@@ -488,11 +548,24 @@ def main() -> int:
             + "; mean below 0 with t <= -"
             + ", -".join(f"{t}: {p:.2f}" for t, p in null["mean_passes"].items())
         )
+    verdict = None
+    if a.rule:
+        verdict = rule_verdict(runs, records, a.rule, a.wall, a.base, a.candidate)
+        print(
+            f"rule of 2026-12-07, {a.rule}: {'PASSES' if verdict['passed'] else 'FAILS'} ("
+            + ", ".join(f"{k} {'ok' if ok else 'FAILS'}" for k, ok in verdict["clauses"].items())
+            + (f"; wall time ratio {verdict['wall_ratio']:.3f}" if "wall_ratio" in verdict else "")
+            + (f"; failing cells: {', '.join(verdict['failing_cells'])}"
+               if verdict["failing_cells"] else "")  # fmt: skip
+            + ")"
+        )
     if a.json:
         doc = {"base": a.base, "candidate": a.candidate, "files": a.runs, "runs": runs,
                "shared": a.shared, "coverage_clause": clause}  # fmt: skip
         if null is not None:
             doc["null"] = null
+        if verdict is not None:
+            doc["rule"] = verdict
         doc["table"] = [{"label": label, **s} for label, s in rows]
         Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     return 0

@@ -386,6 +386,45 @@ def test_the_null_rule_counts_how_often_sign_flips_fail_a_cell_or_pass_the_mean(
     assert paired.null_rule(runs([("side", (1.0, 1.0))]), flips=500)["cell_fails"]["1.0"] == 0
 
 
+def test_the_rule_of_2026_12_07_fails_each_clause_on_its_own():
+    paired = load("paired")
+
+    def records(changes, group="wide", occ=0, swaps=10, accel=3.0, cov=1.0, wall=1.0):
+        # one tracker seed per run: the baseline at 50 mm, the candidate at 50 + change
+        return [{
+            "group": group, "seed": 100 + i, "motion": "walk", "occ": occ, "tseed": 0,
+            "default": {"D": 50.0, "swaps": 10, "cov": 1.0, "accel": 3.0, "s": 10.0},
+            "cand": {"D": 50.0 + c, "swaps": swaps, "cov": cov, "accel": accel, "s": 10.0 * wall},
+        } for i, c in enumerate(changes)]  # fmt: skip
+
+    def verdict(recs, stage="screen", wall_max=None):
+        runs = paired.run_changes(recs, "default", "cand")
+        return paired.rule_verdict(runs, recs, stage, wall_max, "default", "cand")
+
+    gain = [-3.0, -2.5, -3.5, -2.8, -3.2, -3.0]
+    ok = verdict(records(gain), wall_max=1.3)
+    assert ok["passed"] and ok["wall_ratio"] == 1.0 and set(ok["clauses"]) >= {"mean", "wall"}
+    # the mean: below 0 but t above -2 fails a screen and passes a report stage
+    weak = [-3.0, 2.9, -3.0, 2.9, -3.0, 2.9]
+    assert verdict(records(weak), wall_max=1.3)["clauses"] == {**ok["clauses"], "mean": False}
+    assert verdict(records(weak), "report")["passed"]
+    # a cell worse by more than 1 mm with t >= 2, while the mean over all runs still gains
+    cell = records(gain * 3) + records([2.0, 3.0, 2.5], group="side", occ=2)
+    out = verdict(cell)
+    assert not out["passed"] and out["failing_cells"] == ["side, occlusion 2"]
+    assert out["clauses"]["mean"]
+    # one swapped-limb frame more a run: a screen fails, a report stage allows up to 10 %
+    assert verdict(records(gain, swaps=11))["clauses"]["swaps"] is False
+    assert verdict(records(gain, swaps=11), "report")["passed"]
+    assert not verdict(records(gain, swaps=12), "report")["passed"]
+    # acceleration up by more than 10 %, coverage lost, the wall-time budget
+    assert verdict(records(gain, accel=3.4))["clauses"]["accel"] is False
+    assert verdict(records(gain, cov=0.9))["clauses"]["coverage"] is False
+    assert verdict(records(gain, wall=1.4), wall_max=1.3)["clauses"]["wall"] is False
+    with pytest.raises(ValueError, match="stage"):
+        verdict(records(gain), "final")
+
+
 def test_the_paired_change_reads_a_missing_acceleration_as_nan():
     # records written before the acceleration error was recorded still join; their mean is nan
     paired = load("paired")
