@@ -45,7 +45,8 @@ left/right pair from the last tracked pose's facing only),
 consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN`` (that
 with ``reinit_check_tracked=N``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
-(``SmoothSettings(online_robust=X)``, metres), ``anchorX``
+(``SmoothSettings(online_robust=X)``, metres; 0.05 is the default since 2026-12-08, so
+``orobust0`` is the online smoothing before it), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``

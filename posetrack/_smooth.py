@@ -100,14 +100,14 @@ class SmoothSettings:
     traded D against acceleration error by a few per cent either way."""
     online_iterations: int = 3
     """Gauss-Newton steps fitting the pose to the smoothed keypoints (online)."""
-    online_robust: float = 0.0
+    online_robust: float = 0.05
     """Online: after the smoothing, each keypoint-frame's data weight is divided by
     ``1 + (r / online_robust)^2`` (r its distance from the smoothed track, metres) and the
     window smoothed again, so a frame far off its neighbours (an outlier the tracker followed)
-    pulls less; 0 (the default): one plain smoothing. Opt-in: at 0.05 m it lowered D by
-    0.7-0.9 mm on 96 wide real tuning runs but added 2 swapped-limb frames to 535 on 64 of
-    them, which its rule did not allow (benchmarks/README.md, "Where online loses to
-    offline")."""
+    pulls less; 0: one plain smoothing (the default before 2026-12-08). The default since its
+    online screen on 76 fresh tuning runs (D -0.55 mm, t -7.3, every group better, fewer
+    swapped-limb frames) and its report stage (benchmarks/README.md, "The robust online
+    smoothing again"); it costs a second smoothing of the window (~0.06 ms a frame)."""
     window: int = 96
     """Frames per window (offline); static: one compiled program per window size."""
     overlap: int = 16

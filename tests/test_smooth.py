@@ -405,8 +405,11 @@ def test_online_robust_smoothing_pulls_less_toward_an_outlying_frame():
         keypoints=jnp.asarray(kps, jnp.float32), confidence=jnp.full((T, 18), 0.8),
         params=jnp.zeros((T, 43)), valid=jnp.ones(T, bool),
     )  # fmt: skip
-    plain = np.asarray(_smooth._online_smooth(pt.SmoothSettings(), window, 30.0))
+    plain = np.asarray(_smooth._online_smooth(pt.SmoothSettings(online_robust=0.0), window, 30.0))
     robust = np.asarray(_smooth._online_smooth(pt.SmoothSettings(online_robust=0.05), window, 30.0))
+    # the default smooths robustly (0.05 m)
+    default = np.asarray(_smooth._online_smooth(pt.SmoothSettings(), window, 30.0))
+    np.testing.assert_array_equal(default, robust)
     off = lambda x: np.linalg.norm(x[:, 4] - line[:, 4], axis=-1)  # noqa: E731
     # The neighbours of the outlying frame are pulled less toward it, and so is the frame.
     assert off(robust)[[5, 6, 8, 9]].max() < 0.5 * off(plain)[[5, 6, 8, 9]].max()
