@@ -46,7 +46,8 @@ consensus refit), ``lvm`` (``TrackerConfig.recommended("lvm")``), ``lvm-trackedN
 with ``reinit_check_tracked=N``), ``oaccX``
 (``SmoothSettings(online_accel_std=X)``, m/s^2), ``orobustX``
 (``SmoothSettings(online_robust=X)``, metres; 0.05 is the default since 2026-12-08, so
-``orobust0`` is the online smoothing before it), ``anchorX``
+``orobust0`` is the online smoothing before it), ``owinN`` (``SmoothSettings(online_window=N)``:
+the online smoothing over the newest N frames; 12 is the default), ``anchorX``
 (``SideSettings.for_mode("online", online_anchor=X)``, metres; online only), ``amargX``
 (``SideSettings.for_mode("online", arbitrate_margin=X)``; groups as online), ``oframesN``
 (``SideSettings.for_mode("online", online_frames=N)``), ``omodelX``
@@ -308,6 +309,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {**(settings(rest.removesuffix("-"), mode) if rest else {}), **out}
+    if variant.startswith("owin") and variant[4:].isdigit():  # the online window's frames
+        return {"motion": pt.SmoothSettings(online_window=int(variant[4:]))}
     if variant.startswith("spread") and variant[6:].isdigit():  # online refinements in parts
         return {"refine": dataclasses.replace(tracking, online_spread=int(variant[6:]))}
     if variant.startswith("alone"):  # aloneN: the mode's follower, alone_frames=N
@@ -420,7 +423,7 @@ def settings(variant: str, mode: str = "offline") -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'anchorX', 'amargX', "
+        "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'owinN', 'anchorX', 'amargX', "
         "'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
