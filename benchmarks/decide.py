@@ -423,8 +423,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     raise SystemExit(
         f"error: --variants: {variant!r} is none of 'default', 'inbatch', 'norefit', 'alllm', "
-        "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'owinN', 'anchorX', 'amargX', "
-        "'oframesN', 'omodelX', "
+        "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'owinN', 'anchorX', "
+        "'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
         "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
