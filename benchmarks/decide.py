@@ -221,15 +221,16 @@ _ONLINE_SIDES = {
 
 
 #: Variants of one numeric setting: name prefix -> (``Tracker`` keyword, settings class,
-#: field); the number follows the prefix.
+#: field, type of the number that follows the prefix).
 _NUMBERED = {
-    "oacc": ("motion", pt.SmoothSettings, "online_accel_std"),
-    "orobust": ("motion", pt.SmoothSettings, "online_robust"),
-    "conf": ("config", pt.TrackerConfig, "depth_confidence"),
-    "far": ("config", pt.TrackerConfig, "depth_confidence_far"),
-    "band": ("config", pt.TrackerConfig, "lift_band"),
-    "agree": ("config", pt.TrackerConfig, "lost_agreement"),
-    "follow": ("follow", pt.FollowSettings, "depth_band"),
+    "oacc": ("motion", pt.SmoothSettings, "online_accel_std", float),
+    "orobust": ("motion", pt.SmoothSettings, "online_robust", float),
+    "owin": ("motion", pt.SmoothSettings, "online_window", int),
+    "conf": ("config", pt.TrackerConfig, "depth_confidence", float),
+    "far": ("config", pt.TrackerConfig, "depth_confidence_far", float),
+    "band": ("config", pt.TrackerConfig, "lift_band", float),
+    "agree": ("config", pt.TrackerConfig, "lost_agreement", float),
+    "follow": ("follow", pt.FollowSettings, "depth_band", float),
 }
 
 
@@ -309,8 +310,6 @@ def settings(variant: str, mode: str = "offline") -> dict:
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
         return {**(settings(rest.removesuffix("-"), mode) if rest else {}), **out}
-    if variant.startswith("owin") and variant[4:].isdigit():  # the online window's frames
-        return {"motion": pt.SmoothSettings(online_window=int(variant[4:]))}
     if variant.startswith("spread") and variant[6:].isdigit():  # online refinements in parts
         return {"refine": dataclasses.replace(tracking, online_spread=int(variant[6:]))}
     if variant.startswith("alone"):  # aloneN: the mode's follower, alone_frames=N
@@ -318,10 +317,10 @@ def settings(variant: str, mode: str = "offline") -> dict:
             return {"follow": pt.FollowSettings.for_mode(mode, alone_frames=int(variant[5:]))}
         except ValueError as e:
             raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
-    for prefix, (kwarg, make, field) in _NUMBERED.items():
+    for prefix, (kwarg, make, field, kind) in _NUMBERED.items():
         if variant.startswith(prefix):
             try:
-                return {kwarg: make(**{field: float(variant[len(prefix) :])})}
+                return {kwarg: make(**{field: kind(variant[len(prefix) :])})}
             except ValueError as e:
                 raise SystemExit(f"error: --variants: {variant!r}: {e}") from None
     for prefix, (field, kind) in _ONLINE_SIDES.items():
