@@ -273,6 +273,17 @@ class SideSettings:
     screen on 56 fresh tuning runs passed (D -0.93 mm, swapped-limb frames 605 -> 538); the
     online report stage (2026-12-04) gave D -0.60 mm and fewer swapped-limb frames but 14
     fewer answered frames of 23,040, where its rule asked for none. Not in the paper."""
+    online_turn_restart: bool = False
+    """Online, with :attr:`arbitrate` and the "torso" group: where the torso is newly read
+    exchanged and a first pose from this frame's landmarks under the exchanged labels
+    (:func:`posetrack._init.initial_pose`) faces more than 90 degrees away from the track's
+    pose before the frame, the exchanged reading is tracked from a re-initialisation on
+    those landmarks instead of from the track: the forward pass read the detector's
+    whole-body swap a few frames late, the track has already turned round with the swapped
+    labels, and a few fitting steps from there do not turn it back, so the depth judged a
+    turned pose against a turned pose and kept the swap (benchmarks/README.md, "Online
+    tracks that turn with a late-read whole-body swap"). The as-detected reading is tracked
+    as before and the depth judges the two as always. Opt-in."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -312,7 +323,10 @@ class SideSettings:
         return cls(**changes)
 
     def __post_init__(self):
-        for name in ("arbitrate", "arbitrate_groups", "online_groups", "torso_with_limbs"):
+        for name in (
+            "arbitrate", "arbitrate_groups", "online_groups", "torso_with_limbs",
+            "online_turn_restart",
+        ):  # fmt: skip
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(
                     f"SideSettings: {name} must be True or False, got {getattr(self, name)!r}"

@@ -284,6 +284,12 @@ def _turns_around(turns: list[tuple[int, int]], spans: dict) -> list[tuple[int, 
     return out
 
 
+#: :attr:`SideSettings.online_turn_restart`: the exchanged reading restarts where its first
+#: pose's left axis is turned from the track's by more than 45 degrees (a track turning with
+#: a swap is caught half-way round: the reading comes a frame or two after the swap).
+_TURN_RESTART_COS = 0.7
+
+
 def _body_flipped(lm: Landmarks) -> Landmarks:
     """``lm`` (host arrays) with every left/right keypoint pair exchanged."""
     return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
@@ -515,6 +521,12 @@ class Tracker:
         # (frame, pose (43,), keypoints (18, 3)) of the last frame judged tracked: where a
         # re-initialisation without a left/right pair starts (reinit_partial_frames).
         self._last_tracked_pose: tuple | None = None
+        self._fit_input: tuple | None = None  # the last frame's (depth, keypoints, conf) fitted
+        self._restart_next = False  # SideSettings.online_turn_restart: the next frame restarts
+        self.turn_restart_frames: tuple[int, ...] = ()
+        """Online, with :attr:`SideSettings.online_turn_restart`: frames (0-based) whose
+        exchanged reading was tracked from a re-initialisation (the track had turned round with
+        a whole-body swap read late); whether the depth then kept it is in :attr:`side_spans`."""
         self.reinit_flip_frames: tuple[int, ...] = ()
         """Frames (0-based, as counted by :meth:`update` and :meth:`run`; since the last
         :meth:`run`) whose re-initialisation exchanged every left/right pair to keep the lost
@@ -1227,6 +1239,13 @@ class Tracker:
             new = self._new_exchanged.copy()
             if not new.any() or self._person < 0:
                 return out
+            if self._turned_by_swap(before[0][0], new):
+                # SideSettings.online_turn_restart: the exchanged reading from a restart.
+                self._restore_online(before)
+                self._restart_next = True
+                out = self._update_once(depth, kp2d, conf)
+                self.turn_restart_frames += (self._frames_seen - 1,)
+                new = self._new_exchanged.copy()
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = Branch(self._online_snapshot(), [self._judged_row(out)])
             arb = OnlineArbitration(left=self._online_frames(), readings=[Reading(new, first)])
@@ -1262,6 +1281,23 @@ class Tracker:
             self._labeller.anchor(kept_groups, self.sides.online_anchor)
             self.exchanged = self.exchanged | kept_groups
         return keep.out
+
+    def _turned_by_swap(self, state, new: np.ndarray) -> bool:
+        """:attr:`SideSettings.online_turn_restart`: whether the frame just tracked newly read
+        the torso exchanged while a first pose from its landmarks under those labels faces
+        away from ``state`` (the track before the frame)."""
+        groups = self.sides.groups
+        if not self.sides.online_turn_restart or "torso" not in groups or state is None:
+            return False
+        if not new[groups.index("torso")] or self._fit_input is None:
+            return False
+        lm = self._lift(*self._fit_input)
+        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
+        if p0 is None:
+            return False
+        left = quat_to_matrix(np.asarray(p0[3:7], np.float64))[:, 0]
+        best = np.asarray(resolve(state).best, np.float64)
+        return bool(np.dot(left, quat_to_matrix(best[3:7])[:, 0]) < _TURN_RESTART_COS)
 
     def _judged_branch(
         self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
@@ -1411,6 +1447,11 @@ class Tracker:
         depth_m = check_depth(self.intrinsics, depth, self.depth_scale, "update")
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
+        self._fit_input = (depth_fit, kp, conf) if p >= 0 else None
+        if self._restart_next:  # SideSettings.online_turn_restart: start afresh on this frame
+            self._restart_next = False
+            if p >= 0:
+                self._state = None
         if p < 0:
             if not self._others_only(p, cands):
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
@@ -1526,6 +1567,7 @@ class Tracker:
         self.side_spans, self.side_span_groups, self._judged_rows = [], [], None
         self.turn_spans = []
         self.reinit_flip_frames, self.reinit_check_deltas = (), ()
+        self.turn_restart_frames = ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             persons, exchanged, spans, turns = self._offline_plan(depths, keypoints2d, confidence)
