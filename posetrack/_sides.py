@@ -275,15 +275,14 @@ class SideSettings:
     fewer answered frames of 23,040, where its rule asked for none. Not in the paper."""
     online_turn_restart: bool = False
     """Online, with :attr:`arbitrate` and the "torso" group: where the torso is newly read
-    exchanged and a first pose from this frame's landmarks under the exchanged labels
-    (:func:`posetrack._init.initial_pose`) faces more than 90 degrees away from the track's
-    pose before the frame, the exchanged reading is tracked from a re-initialisation on
-    those landmarks instead of from the track: the forward pass read the detector's
-    whole-body swap a few frames late, the track has already turned round with the swapped
-    labels, and a few fitting steps from there do not turn it back, so the depth judged a
-    turned pose against a turned pose and kept the swap (benchmarks/README.md, "Online
-    tracks that turn with a late-read whole-body swap"). The as-detected reading is tracked
-    as before and the depth judges the two as always. Opt-in."""
+    exchanged, the track turned by more than 45 degrees over the last 3 frames, and a first
+    pose from this frame's landmarks under the exchanged labels
+    (:func:`posetrack._init.initial_pose`) faces the way the track faced before that turn,
+    the track restarts from its own pose turned back round and the exchange is taken as
+    read, not judged by the depth. The forward pass read the detector's whole-body swap a
+    frame or two late, the track has turned with the swapped labels meanwhile, and the
+    depth cannot tell a body turned round (benchmarks/README.md, "Online tracks that turn
+    with a late-read whole-body swap"). Opt-in."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the

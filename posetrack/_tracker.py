@@ -284,10 +284,14 @@ def _turns_around(turns: list[tuple[int, int]], spans: dict) -> list[tuple[int, 
     return out
 
 
-#: :attr:`SideSettings.online_turn_restart`: the exchanged reading restarts where its first
-#: pose's left axis is turned from the track's by more than 45 degrees (a track turning with
-#: a swap is caught half-way round: the reading comes a frame or two after the swap).
+#: :attr:`SideSettings.online_turn_restart`: the track turned (its left axis) by more than 45
+#: degrees (a track turning with a swap is caught part-way round: the reading comes a frame or
+#: two after the swap) ...
 _TURN_RESTART_COS = 0.7
+#: ... over this many frames (people turn that fast rarely: 49 degrees in 5 frames is the
+#: 99th percentile of the tuning clips' truth, benchmarks/README.md "How fast tracks and
+#: people turn").
+_TURN_RESTART_FRAMES = 3
 
 
 def _body_flipped(lm: Landmarks) -> Landmarks:
@@ -1239,13 +1243,15 @@ class Tracker:
             new = self._new_exchanged.copy()
             if not new.any() or self._person < 0:
                 return out
-            if self._turned_by_swap(before[0][0], new):
-                # SideSettings.online_turn_restart: the exchanged reading from a restart.
+            if self._turned_by_swap(before, new):
+                # SideSettings.online_turn_restart: the track turned back round and the
+                # exchange taken as read (the depth cannot tell a body turned round).
                 self._restore_online(before)
                 self._restart_next = True
                 out = self._update_once(depth, kp2d, conf)
                 self.turn_restart_frames += (self._frames_seen - 1,)
-                new = self._new_exchanged.copy()
+                self._since_judged[self._new_exchanged] = 0
+                return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = Branch(self._online_snapshot(), [self._judged_row(out)])
             arb = OnlineArbitration(left=self._online_frames(), readings=[Reading(new, first)])
@@ -1282,22 +1288,71 @@ class Tracker:
             self.exchanged = self.exchanged | kept_groups
         return keep.out
 
-    def _turned_by_swap(self, state, new: np.ndarray) -> bool:
+    def _turned_by_swap(self, before: tuple, new: np.ndarray) -> bool:
         """:attr:`SideSettings.online_turn_restart`: whether the frame just tracked newly read
-        the torso exchanged while a first pose from its landmarks under those labels faces
-        away from ``state`` (the track before the frame)."""
+        the torso exchanged where the track (``before``, the online snapshot before the frame)
+        turned by more than 45 degrees over the last :data:`_TURN_RESTART_FRAMES` frames while
+        a first pose from this frame's landmarks under the exchanged labels faces the way the
+        track faced before that turn and away from where it faces now."""
         groups = self.sides.groups
-        if not self.sides.online_turn_restart or "torso" not in groups or state is None:
+        if not self.sides.online_turn_restart or "torso" not in groups or before[0][0] is None:
             return False
         if not new[groups.index("torso")] or self._fit_input is None:
+            return False
+        k = _TURN_RESTART_FRAMES
+        window, valid = before[1], before[3]
+        if not (valid[-1] and valid[-1 - k]):
             return False
         lm = self._lift(*self._fit_input)
         p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
         if p0 is None:
             return False
-        left = quat_to_matrix(np.asarray(p0[3:7], np.float64))[:, 0]
-        best = np.asarray(resolve(state).best, np.float64)
-        return bool(np.dot(left, quat_to_matrix(best[3:7])[:, 0]) < _TURN_RESTART_COS)
+        now, then = np.asarray(jax.device_get(window.params))[[-1, -1 - k]]
+
+        def left(p):
+            return quat_to_matrix(np.asarray(p[3:7], np.float64))[:, 0]
+
+        cos = _TURN_RESTART_COS
+        return bool(
+            np.dot(left(now), left(then)) < cos
+            and np.dot(left(p0), left(now)) < cos
+            and np.dot(left(p0), left(then)) > cos
+        )
+
+    def _turn_back(self) -> None:
+        """:attr:`SideSettings.online_turn_restart`: restart the track from its own pose turned
+        back round: the keypoints of its chosen pose with left and right exchanged (what the
+        track fitted with the swapped labels, read with the true ones), fitted by the
+        re-initialisation's fit (already compiled) from a first pose on them. A fresh fit on
+        the frame's landmarks instead converged too slowly for the depth to prefer it (a
+        synthetic whole-body swap read two frames late: 91-118 mm against the turned track's
+        336-346, yet a Delta sum 0.5 higher over the judged frames)."""
+        state = resolve(self._state)
+        hyps, best = np.asarray(state.hypotheses), np.asarray(state.best)
+        kps = np.asarray(state.previous)[np.argmin(np.abs(hyps - best).sum(axis=1))][_BODY_FLIP]
+        p0 = initial_pose(kps, np.ones(18, bool), self.shape)
+        if p0 is None:
+            return
+        ones = np.ones(18, np.float32)
+        lm = Landmarks(
+            keypoints2d=_host_f32(project_host(self.intrinsics, kps)), confidence=ones,
+            points3d=_host_f32(kps), detected=ones > 0, has_depth=ones > 0,
+        )  # fmt: skip
+        res, fitted, keys = initial_fit(
+            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
+        )
+        params = np.asarray(res.params)
+        if not np.all(np.isfinite(params)):
+            return
+        N = self.config.n
+        self._key, sub = keys
+        self._state = TrackState(
+            hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
+            previous=jax.device_put(np.tile(np.asarray(fitted)[None], (N, 1, 1))),
+            best=res.params,
+            key=sub,
+            trusted=jax.device_put(np.True_),
+        )
 
     def _judged_branch(
         self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
@@ -1448,10 +1503,10 @@ class Tracker:
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
         self._fit_input = (depth_fit, kp, conf) if p >= 0 else None
-        if self._restart_next:  # SideSettings.online_turn_restart: start afresh on this frame
+        if self._restart_next:  # SideSettings.online_turn_restart: the track turned back
             self._restart_next = False
-            if p >= 0:
-                self._state = None
+            if p >= 0 and self._state is not None:
+                self._turn_back()
         if p < 0:
             if not self._others_only(p, cands):
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
