@@ -429,8 +429,8 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
         "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'trestart', "
-        "'checkfit', 'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
-        "'nobound', 'axesN', 'farX', "
+        "'checkfit', 'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', "
+        "'farboundT-axesN', 'nobound', 'axesN', 'farX', "
         "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'turnsX', 'sides:G+G...'"
     )
