@@ -275,8 +275,8 @@ class SideSettings:
     fewer answered frames of 23,040, where its rule asked for none. Not in the paper."""
     online_turn_restart: bool = False
     """Online, with :attr:`arbitrate` and the "torso" group: where the torso is newly read
-    exchanged, the track turned by more than 45 degrees over the last 3 frames, and a first
-    pose from this frame's landmarks under the exchanged labels
+    exchanged, the track turned by more than 45 degrees over the last 3 frames, and (where
+    the torso has depth) a first pose from this frame's landmarks under the exchanged labels
     (:func:`posetrack._init.initial_pose`) faces the way the track faced before that turn,
     the track restarts from its own pose turned back round and the exchange is taken as
     read, not judged by the depth. The forward pass read the detector's whole-body swap a

@@ -1291,9 +1291,10 @@ class Tracker:
     def _turned_by_swap(self, before: tuple, new: np.ndarray) -> bool:
         """:attr:`SideSettings.online_turn_restart`: whether the frame just tracked newly read
         the torso exchanged where the track (``before``, the online snapshot before the frame)
-        turned by more than 45 degrees over the last :data:`_TURN_RESTART_FRAMES` frames while
-        a first pose from this frame's landmarks under the exchanged labels faces the way the
-        track faced before that turn and away from where it faces now."""
+        turned by more than 45 degrees over the last :data:`_TURN_RESTART_FRAMES` frames and,
+        where this frame's landmarks under the exchanged labels give a first pose (the torso on
+        depth), that pose faces the way the track faced before that turn and away from where
+        it faces now."""
         groups = self.sides.groups
         if not self.sides.online_turn_restart or "torso" not in groups or before[0][0] is None:
             return False
@@ -1303,21 +1304,19 @@ class Tracker:
         window, valid = before[1], before[3]
         if not (valid[-1] and valid[-1 - k]):
             return False
-        lm = self._lift(*self._fit_input)
-        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
-        if p0 is None:
-            return False
         now, then = np.asarray(jax.device_get(window.params))[[-1, -1 - k]]
 
         def left(p):
             return quat_to_matrix(np.asarray(p[3:7], np.float64))[:, 0]
 
         cos = _TURN_RESTART_COS
-        return bool(
-            np.dot(left(now), left(then)) < cos
-            and np.dot(left(p0), left(now)) < cos
-            and np.dot(left(p0), left(then)) > cos
-        )
+        if np.dot(left(now), left(then)) >= cos:
+            return False
+        lm = self._lift(*self._fit_input)
+        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
+        if p0 is None:  # no torso on depth to read the labels' facing from: the turn decides
+            return True
+        return bool(np.dot(left(p0), left(now)) < cos and np.dot(left(p0), left(then)) > cos)
 
     def _turn_back(self) -> None:
         """:attr:`SideSettings.online_turn_restart`: restart the track from its own pose turned
