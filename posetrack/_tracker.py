@@ -294,6 +294,19 @@ _TURN_RESTART_COS = 0.7
 _TURN_RESTART_FRAMES = 3
 
 
+def _fresh_state(n: int, params: np.ndarray, keypoints, best, key) -> TrackState:
+    """A track (re)started from one fit: its ``params`` (43,) and ``keypoints`` (18, 3) as all
+    ``n`` hypotheses. Tiled on the host (the first frame's path: no small programs to compile
+    or load)."""
+    return TrackState(
+        hypotheses=jax.device_put(np.tile(params[None], (n, 1))),
+        previous=jax.device_put(np.tile(np.asarray(keypoints)[None], (n, 1, 1))),
+        best=best,
+        key=key,
+        trusted=jax.device_put(np.True_),
+    )
+
+
 def _body_flipped(lm: Landmarks) -> Landmarks:
     """``lm`` (host arrays) with every left/right keypoint pair exchanged."""
     return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
@@ -1050,16 +1063,8 @@ class Tracker:
         self._floor = device_f32(floor)
         if self._found_floor is None and floor != NO_FLOOR:
             self._found_floor = np.asarray(floor, np.float64)
-        N = self.config.n
         self._key, sub = keys
-        # Tiled on the host (the first frame's path: no small programs to compile or load).
-        self._state = TrackState(
-            hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
-            previous=jax.device_put(np.tile(np.asarray(kps)[None], (N, 1, 1))),
-            best=res.params,
-            key=sub,
-            trusted=jax.device_put(np.True_),
-        )
+        self._state = _fresh_state(self.config.n, params, kps, res.params, sub)
         self._lost_run = 0
         self._ever_initialized = True
         return True
@@ -1343,15 +1348,8 @@ class Tracker:
         params = np.asarray(res.params)
         if not np.all(np.isfinite(params)):
             return
-        N = self.config.n
         self._key, sub = keys
-        self._state = TrackState(
-            hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
-            previous=jax.device_put(np.tile(np.asarray(fitted)[None], (N, 1, 1))),
-            best=res.params,
-            key=sub,
-            trusted=jax.device_put(np.True_),
-        )
+        self._state = _fresh_state(self.config.n, params, fitted, res.params, sub)
 
     def _judged_branch(
         self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
