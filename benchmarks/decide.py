@@ -70,8 +70,7 @@ as ``default`` now), ``bothways-crossfade`` (both; the same as ``bothways`` now)
 body-shape refinement spread over N updates, ``ShapeFitSettings.online_spread=N``),
 ``aloneN`` (the mode's ``FollowSettings`` with ``alone_frames=N``), ``grouparb``
 (``SideSettings.for_mode(mode, arbitrate_groups=True)``), ``ogroups``
-(``SideSettings.for_mode(mode, online_groups=True)``), ``trestart``
-(``SideSettings.for_mode(mode, online_turn_restart=True)``; online only), ``checkfit``
+(``SideSettings.for_mode(mode, online_groups=True)``), ``checkfit``
 (``TrackerConfig(reinit_check_fit=True)``), ``checkfitN`` (the same with
 ``reinit_check_frames=N``: the check looks N frames after a loss), ``trackedN``
 (``TrackerConfig(reinit_check_tracked=N)``: the fit checked against the last tracked pose;
@@ -335,8 +334,6 @@ def settings(variant: str, mode: str = "offline") -> dict:
         return {"sides": pt.SideSettings.for_mode(mode, arbitrate_groups=True)}
     if variant == "ogroups":
         return {"sides": pt.SideSettings.for_mode(mode, online_groups=True)}
-    if variant == "trestart":
-        return {"sides": pt.SideSettings.for_mode(mode, online_turn_restart=True)}
     if variant == "checkfit":
         return {"config": pt.TrackerConfig(reinit_check_fit=True)}
     if variant.startswith("checkfit") and variant[8:].isdigit():
@@ -428,9 +425,9 @@ def settings(variant: str, mode: str = "offline") -> dict:
         "'alllm-norefit', 'lvm', 'lvm-trackedN', 'oaccX', 'orobustX', 'owinN', 'anchorX', "
         "'amargX', 'oframesN', 'omodelX', "
         "'bothways', 'crossfade', 'bothways-crossfade', 'kept', 'settleN', 'bandM', 'confX', "
-        "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'trestart', "
-        "'checkfit', 'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', "
-        "'farboundT-axesN', 'nobound', 'axesN', 'farX', "
+        "'agreeX', 'followX', 'aloneN', 'grouparb', 'ogroups', 'checkfit', "
+        "'checkfitN', 'trackedN', 'cdeltaN', 'farboundS', 'farboundT', 'farboundT-axesN', "
+        "'nobound', 'axesN', 'farX', "
         "'priorS/M', 'rpriorS/M', 'girthS', 'twopassS', "
         "'prepassN[r|g]' (N >= 10), 'gateX', 'turnsX', 'sides:G+G...'"
     )

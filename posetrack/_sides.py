@@ -273,16 +273,6 @@ class SideSettings:
     screen on 56 fresh tuning runs passed (D -0.93 mm, swapped-limb frames 605 -> 538); the
     online report stage (2026-12-04) gave D -0.60 mm and fewer swapped-limb frames but 14
     fewer answered frames of 23,040, where its rule asked for none. Not in the paper."""
-    online_turn_restart: bool = False
-    """Online, with :attr:`arbitrate` and the "torso" group: where the torso is newly read
-    exchanged, the track turned by more than 45 degrees over the last 3 frames, and (where
-    the torso has depth) a first pose from this frame's landmarks under the exchanged labels
-    (:func:`posetrack._init.initial_pose`) faces the way the track faced before that turn,
-    the track restarts from its own pose turned back round and the exchange is taken as
-    read, not judged by the depth. The forward pass read the detector's whole-body swap a
-    frame or two late, the track has turned with the swapped labels meanwhile, and the
-    depth cannot tell a body turned round (benchmarks/README.md, "Online tracks that turn
-    with a late-read whole-body swap"). Opt-in."""
     online_rejudge: int = 16
     """Online: a group read exchanged for more than this many frames since the depth last
     judged it is judged again (exchanged from here on, or as detected), so an exchange the
@@ -322,10 +312,7 @@ class SideSettings:
         return cls(**changes)
 
     def __post_init__(self):
-        for name in (
-            "arbitrate", "arbitrate_groups", "online_groups", "torso_with_limbs",
-            "online_turn_restart",
-        ):  # fmt: skip
+        for name in ("arbitrate", "arbitrate_groups", "online_groups", "torso_with_limbs"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(
                     f"SideSettings: {name} must be True or False, got {getattr(self, name)!r}"

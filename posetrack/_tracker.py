@@ -284,29 +284,6 @@ def _turns_around(turns: list[tuple[int, int]], spans: dict) -> list[tuple[int, 
     return out
 
 
-#: :attr:`SideSettings.online_turn_restart`: the track turned (its left axis) by more than 45
-#: degrees (a track turning with a swap is caught part-way round: the reading comes a frame or
-#: two after the swap) ...
-_TURN_RESTART_COS = 0.7
-#: ... over this many frames (people turn that fast rarely: 49 degrees in 5 frames is the
-#: 99th percentile of the tuning clips' truth, benchmarks/README.md "How fast tracks and
-#: people turn").
-_TURN_RESTART_FRAMES = 3
-
-
-def _fresh_state(n: int, params: np.ndarray, keypoints, best, key) -> TrackState:
-    """A track (re)started from one fit: its ``params`` (43,) and ``keypoints`` (18, 3) as all
-    ``n`` hypotheses. Tiled on the host (the first frame's path: no small programs to compile
-    or load)."""
-    return TrackState(
-        hypotheses=jax.device_put(np.tile(params[None], (n, 1))),
-        previous=jax.device_put(np.tile(np.asarray(keypoints)[None], (n, 1, 1))),
-        best=best,
-        key=key,
-        trusted=jax.device_put(np.True_),
-    )
-
-
 def _body_flipped(lm: Landmarks) -> Landmarks:
     """``lm`` (host arrays) with every left/right keypoint pair exchanged."""
     return jax.tree.map(lambda x: np.asarray(x)[_BODY_FLIP], lm)
@@ -538,12 +515,6 @@ class Tracker:
         # (frame, pose (43,), keypoints (18, 3)) of the last frame judged tracked: where a
         # re-initialisation without a left/right pair starts (reinit_partial_frames).
         self._last_tracked_pose: tuple | None = None
-        self._fit_input: tuple | None = None  # the last frame's (depth, keypoints, conf) fitted
-        self._restart_next = False  # SideSettings.online_turn_restart: the next frame restarts
-        self.turn_restart_frames: tuple[int, ...] = ()
-        """Online, with :attr:`SideSettings.online_turn_restart`: frames (0-based) whose
-        exchanged reading was tracked from a re-initialisation (the track had turned round with
-        a whole-body swap read late); whether the depth then kept it is in :attr:`side_spans`."""
         self.reinit_flip_frames: tuple[int, ...] = ()
         """Frames (0-based, as counted by :meth:`update` and :meth:`run`; since the last
         :meth:`run`) whose re-initialisation exchanged every left/right pair to keep the lost
@@ -1063,8 +1034,16 @@ class Tracker:
         self._floor = device_f32(floor)
         if self._found_floor is None and floor != NO_FLOOR:
             self._found_floor = np.asarray(floor, np.float64)
+        N = self.config.n
         self._key, sub = keys
-        self._state = _fresh_state(self.config.n, params, kps, res.params, sub)
+        # Tiled on the host (the first frame's path: no small programs to compile or load).
+        self._state = TrackState(
+            hypotheses=jax.device_put(np.tile(params[None], (N, 1))),
+            previous=jax.device_put(np.tile(np.asarray(kps)[None], (N, 1, 1))),
+            best=res.params,
+            key=sub,
+            trusted=jax.device_put(np.True_),
+        )
         self._lost_run = 0
         self._ever_initialized = True
         return True
@@ -1248,15 +1227,6 @@ class Tracker:
             new = self._new_exchanged.copy()
             if not new.any() or self._person < 0:
                 return out
-            if self._turned_by_swap(before, new):
-                # SideSettings.online_turn_restart: the track turned back round and the
-                # exchange taken as read (the depth cannot tell a body turned round).
-                self._restore_online(before)
-                self._restart_next = True
-                out = self._update_once(depth, kp2d, conf)
-                self.turn_restart_frames += (self._frames_seen - 1,)
-                self._since_judged[self._new_exchanged] = 0
-                return out
             self._since_judged[new] = 0  # judged from here (as detected: vetoed, so 0 anyway)
             first = Branch(self._online_snapshot(), [self._judged_row(out)])
             arb = OnlineArbitration(left=self._online_frames(), readings=[Reading(new, first)])
@@ -1292,64 +1262,6 @@ class Tracker:
             self._labeller.anchor(kept_groups, self.sides.online_anchor)
             self.exchanged = self.exchanged | kept_groups
         return keep.out
-
-    def _turned_by_swap(self, before: tuple, new: np.ndarray) -> bool:
-        """:attr:`SideSettings.online_turn_restart`: whether the frame just tracked newly read
-        the torso exchanged where the track (``before``, the online snapshot before the frame)
-        turned by more than 45 degrees over the last :data:`_TURN_RESTART_FRAMES` frames and,
-        where this frame's landmarks under the exchanged labels give a first pose (the torso on
-        depth), that pose faces the way the track faced before that turn and away from where
-        it faces now."""
-        groups = self.sides.groups
-        if not self.sides.online_turn_restart or "torso" not in groups or before[0][0] is None:
-            return False
-        if not new[groups.index("torso")] or self._fit_input is None:
-            return False
-        k = _TURN_RESTART_FRAMES
-        window, valid = before[1], before[3]
-        if not (valid[-1] and valid[-1 - k]):
-            return False
-        now, then = np.asarray(jax.device_get(window.params))[[-1, -1 - k]]
-
-        def left(p):
-            return quat_to_matrix(np.asarray(p[3:7], np.float64))[:, 0]
-
-        cos = _TURN_RESTART_COS
-        if np.dot(left(now), left(then)) >= cos:
-            return False
-        lm = self._lift(*self._fit_input)
-        p0 = initial_pose(np.asarray(lm.points3d), np.asarray(lm.has_depth), self.shape)
-        if p0 is None:  # no torso on depth to read the labels' facing from: the turn decides
-            return True
-        return bool(np.dot(left(p0), left(now)) < cos and np.dot(left(p0), left(then)) > cos)
-
-    def _turn_back(self) -> None:
-        """:attr:`SideSettings.online_turn_restart`: restart the track from its own pose turned
-        back round: the keypoints of its chosen pose with left and right exchanged (what the
-        track fitted with the swapped labels, read with the true ones), fitted by the
-        re-initialisation's fit (already compiled) from a first pose on them. A fresh fit on
-        the frame's landmarks instead converged too slowly for the depth to prefer it (a
-        synthetic whole-body swap read two frames late: 91-118 mm against the turned track's
-        336-346, yet a Delta sum 0.5 higher over the judged frames)."""
-        state = resolve(self._state)
-        hyps, best = np.asarray(state.hypotheses), np.asarray(state.best)
-        kps = np.asarray(state.previous)[np.argmin(np.abs(hyps - best).sum(axis=1))][_BODY_FLIP]
-        p0 = initial_pose(kps, np.ones(18, bool), self.shape)
-        if p0 is None:
-            return
-        ones = np.ones(18, np.float32)
-        lm = Landmarks(
-            keypoints2d=_host_f32(project_host(self.intrinsics, kps)), confidence=ones,
-            points3d=_host_f32(kps), detected=ones > 0, has_depth=ones > 0,
-        )  # fmt: skip
-        res, fitted, keys = initial_fit(
-            self._init_settings, self.shape, self.intrinsics, _host_f32(p0), lm, self._key
-        )
-        params = np.asarray(res.params)
-        if not np.all(np.isfinite(params)):
-            return
-        self._key, sub = keys
-        self._state = _fresh_state(self.config.n, params, fitted, res.params, sub)
 
     def _judged_branch(
         self, before: tuple, new: np.ndarray, vetoed: np.ndarray, depth, kp2d, conf
@@ -1499,11 +1411,6 @@ class Tracker:
         depth_m = check_depth(self.intrinsics, depth, self.depth_scale, "update")
         kp_all, conf_all = check_people(keypoints2d, confidence, "update")
         p, cands, depth_fit, kp, conf = self._frame_for_person(depth_m, kp_all, conf_all)
-        self._fit_input = (depth_fit, kp, conf) if p >= 0 else None
-        if self._restart_next:  # SideSettings.online_turn_restart: the track turned back
-            self._restart_next = False
-            if p >= 0 and self._state is not None:
-                self._turn_back()
         if p < 0:
             if not self._others_only(p, cands):
                 return None, NO_OBSERVATION  # nobody (usable) in view, or nobody chosen yet
@@ -1619,7 +1526,6 @@ class Tracker:
         self.side_spans, self.side_span_groups, self._judged_rows = [], [], None
         self.turn_spans = []
         self.reinit_flip_frames, self.reinit_check_deltas = (), ()
-        self.turn_restart_frames = ()
         if self.sides is not None and self.mode == "offline":
             t0 = time.perf_counter()
             persons, exchanged, spans, turns = self._offline_plan(depths, keypoints2d, confidence)

@@ -1014,48 +1014,6 @@ def test_online_each_groups_exchange_is_judged_on_its_own_with_online_groups(cli
     assert T == len(alone.exchanged)
 
 
-def test_online_turn_restart_turns_back_a_track_that_followed_a_late_read_swap(clip, monkeypatch):
-    """Online, the detector swaps every left/right pair (the whole body) in frames 12-27 and
-    the forward labelling reads it two frames late. Fitted to the swapped labels the track turns
-    round, and the depth, judging the exchange from the turned track, keeps "as detected".
-    With ``online_turn_restart`` the track is turned back from its own pose at the reading and
-    the exchange taken as read: the frames of the swap come back. Read at once (no turn
-    first) nothing restarts, bit for bit the shipped tracker."""
-    sw = np.arange(12, 28)
-    kp, conf = clip.keypoints2d.copy(), clip.confidence.copy()
-    flip = _body.flip_labels(range(18))
-    kp[sw], conf[sw] = clip.keypoints2d[sw][:, flip], clip.confidence[sw][:, flip]
-    late = [2]
-
-    def reading(self, keypoints2d, confidence, points3d, has_depth):
-        t = int(np.argmin(np.abs(np.nan_to_num(kp) - np.nan_to_num(keypoints2d)).sum((1, 2))))
-        ex = np.full(len(self._slots), 12 + late[0] <= t < 28)
-        return (*self.relabel(keypoints2d, confidence, ex), ex)
-
-    monkeypatch.setattr(pt.SideLabeller, "update", reading)
-    gt, runs = clip.joints3d, {}
-    for late[0] in (2, 0):
-        for restart in (False, True):
-            sides = pt.SideSettings.for_mode("online", online_turn_restart=restart)
-            tr = pt.Tracker(clip.intrinsics, mode="online", sides=sides, refine=None)
-            runs[late[0], restart] = tr.run(clip.depth, kp, conf), tr.turn_restart_frames
-    (plain, none), (turned, restarts) = runs[2, False], runs[2, True]
-    assert none == () and restarts == (14,)
-    assert turned.exchanged[14:28].all() and not plain.exchanged[14:28].any()
-    d_plain = pt.accuracy(plain.keypoints3d[12:32], gt[12:32]).mean_mm
-    d_turned = pt.accuracy(turned.keypoints3d[12:32], gt[12:32]).mean_mm
-    print(f"frames 12-31: D {d_plain:.1f} mm as shipped, {d_turned:.1f} turned back")
-    assert d_turned < d_plain - 100.0
-    assert pt.swapped_limb_frames(turned.keypoints3d, gt) < pt.swapped_limb_frames(
-        plain.keypoints3d, gt
-    )
-    (at_once, _), (at_once_restart, restarts) = runs[0, False], runs[0, True]
-    assert restarts == ()
-    np.testing.assert_array_equal(at_once_restart.keypoints3d, at_once.keypoints3d)
-    with pytest.raises(ValueError, match="online_turn_restart"):
-        pt.SideSettings(online_turn_restart=1)
-
-
 def _misreading_taken_as_read_costs(taken, taken_kps, judged_kps, gt):
     """The arm labels misread in frames 10-19, taken as read, cost >10 mm over frames 10-24
     against the arbitrated track."""
